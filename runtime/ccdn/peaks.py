@@ -1,0 +1,86 @@
+"""Corner candidates from a score map: the paper's section 2.2, vectorised.
+
+1. Threshold: keep pixels scoring at least `relative` x the map's maximum (the paper's half of the
+   maximum) and at least the absolute `floor`, so an image without a board returns nothing.
+2. Non-maximum suppression: the paper builds 4x4 boxes around candidates and suppresses at IoU 0.5,
+   which as written only removes direct neighbours. We suppress greedily by score within a radius
+   (default 2 px, the reach of a 4x4 box) so that one corner gives one detection; candidates are
+   first reduced to local maxima of a 3x3 window, which is exact and cheap.
+3. Clustering (optional, the paper's): k-means++ with k = 10 on the positions; clusters of <= 2
+   points are dropped. With fewer than 3k candidates k shrinks to n // 3 (at least 1), so a small
+   board is not shredded into clusters of one or two.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def find_peaks(score: np.ndarray, relative: float = 0.5, floor: float = 0.3, radius: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Thresholded, suppressed local maxima of `score` (H, W) float32.
+
+    Returns xy (N, 2) int32 as (x, y) pixel indices and their scores (N,) float32, highest first.
+    """
+    top = float(score.max()) if score.size else 0.0
+    threshold = max(relative * top, floor)
+    if top < threshold or top <= 0:
+        return np.zeros((0, 2), np.int32), np.zeros(0, np.float32)
+    local_max = score >= cv2.dilate(score, np.ones((3, 3), np.uint8))
+    ys, xs = np.nonzero(local_max & (score >= threshold))
+    values = score[ys, xs]
+    order = np.lexsort((xs, ys, -values))  # by score, ties in raster order: deterministic
+    xy = np.stack([xs[order], ys[order]], 1).astype(np.int32)
+    values = values[order]
+    keep = suppress(xy, radius)
+    return xy[keep], values[keep].astype(np.float32)
+
+
+def suppress(xy: np.ndarray, radius: float) -> np.ndarray:
+    """Greedy NMS on points sorted by descending score: True for points no stronger point is near."""
+    n = len(xy)
+    if n < 2:
+        return np.ones(n, bool)
+    d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
+    close = np.triu(d2 <= radius * radius, k=1)  # close[i, j]: j is within reach of stronger i
+    keep = np.ones(n, bool)
+    for j in np.nonzero(close.any(0))[0]:  # loop only over the few points that have a stronger neighbour
+        if (close[:, j] & keep).any():
+            keep[j] = False
+    return keep
+
+
+def kmeans_outliers(xy: np.ndarray, k: int = 10, min_size: int = 3, seed: int = 0, iterations: int = 50) -> np.ndarray:
+    """Mask of points kept by the paper's clustering: members of k-means++ clusters of >= min_size."""
+    n = len(xy)
+    k = min(k, max(1, n // 3))
+    if n == 0 or k == 1:
+        return np.ones(n, bool)
+    pts = xy.astype(np.float64)
+    labels = kmeans_pp(pts, k, seed, iterations)
+    sizes = np.bincount(labels, minlength=k)
+    return sizes[labels] >= min_size
+
+
+def kmeans_pp(pts: np.ndarray, k: int, seed: int = 0, iterations: int = 50) -> np.ndarray:
+    """Lloyd's k-means with k-means++ seeding, deterministic for a given seed; returns labels."""
+    rng = np.random.default_rng(seed)
+    centres = [pts[rng.integers(len(pts))]]
+    d2 = ((pts - centres[0]) ** 2).sum(1)
+    for _ in range(1, k):
+        total = d2.sum()
+        idx = rng.choice(len(pts), p=d2 / total) if total > 0 else rng.integers(len(pts))
+        centres.append(pts[idx])
+        d2 = np.minimum(d2, ((pts - pts[idx]) ** 2).sum(1))
+    c = np.array(centres)
+    labels = np.zeros(len(pts), np.int64)
+    for it in range(iterations):
+        labels_new = ((pts[:, None] - c[None]) ** 2).sum(-1).argmin(1)
+        if it and np.array_equal(labels_new, labels):
+            break
+        labels = labels_new
+        counts = np.bincount(labels, minlength=k)[:, None]
+        sums = np.zeros_like(c)
+        np.add.at(sums, labels, pts)
+        c = np.where(counts > 0, sums / np.maximum(counts, 1), c)
+    return labels

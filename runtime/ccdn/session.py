@@ -1,0 +1,72 @@
+"""One onnxruntime CPU session per Detector: explicit threads, metadata checked, scores out."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from .models import ModelError, model_path
+
+KNOWN_PREPROCESSING = {"gray_u8_div255"}
+MAX_DEFAULT_THREADS = 4
+
+
+def default_threads() -> int:
+    """Physical cores are not visible portably; use the CPUs this process may run on, capped."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, MAX_DEFAULT_THREADS))
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """A loaded model's identity, from its ONNX metadata_props."""
+
+    path: Path
+    name: str
+    version: str
+    preprocessing: str
+    metadata: dict[str, str]
+
+
+class ScoreSession:
+    """Runs the network on a gray uint8 frame and returns its (H, W) float32 score map.
+
+    Thread-safe: onnxruntime's InferenceSession.run may be called from several threads at once.
+    """
+
+    def __init__(self, model: str | os.PathLike | None = None, threads: int | None = None, spinning: bool = True) -> None:
+        path = model_path(model)
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads or default_threads()
+        options.inter_op_num_threads = 1
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        # EXTENDED beats ALL here: ALL's blocked layout pads the 20 channels to multiples of 16.
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED
+        options.log_severity_level = 3
+        if not spinning:
+            options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        try:
+            self._session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types for bad models
+            raise ModelError(f"{path}: onnxruntime cannot load it ({exc})") from exc
+        meta = dict(self._session.get_modelmeta().custom_metadata_map)
+        preprocessing = meta.get("preprocessing")
+        if preprocessing not in KNOWN_PREPROCESSING:
+            raise ModelError(f"{path}: unknown preprocessing {preprocessing!r}; this runtime knows {sorted(KNOWN_PREPROCESSING)}")
+        self.info = ModelInfo(path, meta.get("name", path.stem), meta.get("version", "unknown"), preprocessing, meta)
+        self.threads = options.intra_op_num_threads
+        self._input = self._session.get_inputs()[0].name
+
+    def scores(self, gray: np.ndarray) -> np.ndarray:
+        """(H, W) uint8 -> (H, W) float32 corner scores."""
+        x = gray.astype(np.float32)
+        x *= 1.0 / 255.0
+        out = self._session.run(None, {self._input: x[None, None]})[0]
+        return out[0, 0]
