@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm", ".pbm", ".jp2"}
-
+FORMATS = ["json", "jsonl", "csv"]  # ccdn.batch.FORMATS, repeated so that the parser imports nothing heavy
+MAX_PIXELS_HELP = "100000000"  # ccdn.image.DEFAULT_MAX_PIXELS, likewise (a test checks both)
 
 
 def _version() -> str:
@@ -19,55 +19,61 @@ def _version() -> str:
         return "unknown"
 
 
-def collect_inputs(paths: list[Path]) -> list[tuple[Path, Path]]:
-    """(file, name relative to its input) for each file given and each image file under each folder."""
-    items = []
-    for root in paths:
-        if root.is_dir():
-            for p in sorted(root.rglob("*")):
-                if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES:
-                    items.append((p, p.relative_to(root)))
-        else:
-            items.append((root, Path(root.name)))  # missing files are reported when processed
-    return items
+def positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
 
 
 def run_detect(args: argparse.Namespace) -> int:
+    """`ccdn detect`: exit 0 when every image was done, 1 when some failed, 2 on a usage or model error."""
+    import cv2
     from tqdm import tqdm
 
-    from .detector import Detector
-    from .image import ImageError
-    from .models import ModelError
-    from .writers import write_json, write_overlay
+    from .batch import Batch, BatchOptions, collect_inputs
+    from .image import DEFAULT_MAX_PIXELS
 
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # failures get their own reasons below
+    overlay = args.format == "json" if args.overlay is None else args.overlay
+    options = BatchOptions(args.out, args.format, overlay, args.force, args.workers, args.threads, args.model,
+                           args.max_pixels or DEFAULT_MAX_PIXELS)
     try:
-        detector = Detector(args.model, args.threads)
-    except ModelError as exc:
+        batch = Batch(options)
+        items, failures = collect_inputs(args.paths, args.include, args.exclude, skip=args.out)
+        if not items and not failures:
+            print(f"ccdn: no images found in {', '.join(map(str, args.paths))} (see --include)", file=sys.stderr)
+            return 2
+        todo, skipped = batch.plan(items)
+    except (OSError, ValueError) as exc:  # ModelError is a ValueError
         print(f"ccdn: {exc}", file=sys.stderr)
         return 2
-    items = collect_inputs(args.paths)
-    if not items:
-        print("ccdn: no images found in " + ", ".join(map(str, args.paths)), file=sys.stderr)
-        return 1
-    failures: list[tuple[Path, str]] = []
-    total_corners = 0
-    bar = tqdm(items, unit="img", disable=args.quiet or not sys.stderr.isatty(), file=sys.stderr)
-    for path, name in bar:
-        try:
-            gray = detector.load(path)
-            result = detector.detect(gray)
-            write_json(args.out / name.with_suffix(".json"), result, str(path))
-            if not args.no_overlay:
-                write_overlay(args.out / name.with_name(name.stem + ".overlay.jpg"), gray, result)
-        except (ImageError, OSError) as exc:
-            failures.append((path, str(exc)))
-            tqdm.write(f"ccdn: skipped {exc}", file=sys.stderr)
-            continue
-        total_corners += len(result)
-    done = len(items) - len(failures)
-    print(f"ccdn: {done} of {len(items)} images done, {total_corners} corners, results in {args.out}", file=sys.stderr)
-    for path, reason in failures:
-        print(f"  failed: {reason}", file=sys.stderr)
+    show_bar = not args.quiet and sys.stderr.isatty()
+    if skipped and not args.quiet:
+        print(f"ccdn: {skipped} of {len(items)} images already done (--force redoes them)", file=sys.stderr)
+    done = corners = 0
+    bar = tqdm(total=len(todo), unit="img", disable=not show_bar, file=sys.stderr, dynamic_ncols=True)
+    try:
+        for outcome in batch.run(todo):
+            bar.update()
+            if outcome.reason is None:
+                done += 1
+                corners += outcome.corners
+            else:
+                failures.append(outcome)
+                if show_bar:
+                    bar.write(f"ccdn: failed: {outcome.reason}", file=sys.stderr)
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"ccdn: interrupted after {done} images; run the same command again to resume", file=sys.stderr)
+        return 130
+    bar.close()
+    if not args.quiet:
+        where = args.out / batch.log_name if batch.log_name else args.out
+        print(f"ccdn: {done} images done, {skipped} already done, {len(failures)} failed, {corners} corners; "
+              f"results in {where}", file=sys.stderr)
+    for outcome in failures:
+        print(f"ccdn: failed: {outcome.reason}", file=sys.stderr)
     return 1 if failures else 0
 
 
@@ -75,15 +81,106 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ccdn", description="Checkerboard corner detection (CCDN).")
     parser.add_argument("--version", action="version", version=f"ccdn {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("detect", help="detect corners in images and folders; one JSON (+ overlay) per image")
-    p.add_argument("paths", nargs="+", type=Path, help="image files and folders (searched recursively)")
+    p = sub.add_parser(
+        "detect", help="detect corners in images and folders (parallel, resumable)",
+        description="Detect checkerboard corners in image files and folders (searched recursively). Images "
+                    "whose result is already in --out are skipped, so an interrupted run resumes where it "
+                    "stopped. Exit status: 0 all images done, 1 some failed (listed at the end), 2 usage or "
+                    "model error.")
+    p.add_argument("paths", nargs="+", type=Path, help="image files and folders (use -- before names that start with -)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--format", choices=FORMATS, default="json",
+                   help="json: <name>.json per image (default); jsonl: one detections.jsonl, a line per image; "
+                        "csv: one corners.csv, a row per corner (image,x,y,score)")
+    p.add_argument("--overlay", action=argparse.BooleanOptionalAction, default=None,
+                   help="also draw the corners into <name>.overlay.jpg (default: on for json, off for jsonl/csv)")
+    p.add_argument("--include", action="append", default=[], metavar="GLOB",
+                   help="take only files matching GLOB (repeatable; case-insensitive; matched against the file "
+                        "name, or the path inside the folder if GLOB has a /). Default: known image suffixes")
+    p.add_argument("--exclude", action="append", default=[], metavar="GLOB", help="skip files matching GLOB (repeatable)")
+    p.add_argument("--workers", type=positive_int, default=1, metavar="N",
+                   help="worker processes, each with its own detector (default 1: in this process)")
+    p.add_argument("--threads", type=positive_int, default=None, metavar="N",
+                   help="inference threads per worker (default: CPUs capped at 4 with one worker, 1 with several)")
+    p.add_argument("--max-pixels", type=positive_int, default=None, metavar="N",
+                   help=f"refuse larger images, checked from the file header before decoding (default {MAX_PIXELS_HELP})")
+    p.add_argument("--force", action="store_true", help="redo images that already have a result")
     p.add_argument("--model", default=None, help="bundled model name or .onnx path (default: paper)")
-    p.add_argument("--threads", type=int, default=None, help="inference threads (default: CPUs, capped at 4)")
-    p.add_argument("--no-overlay", action="store_true", help="write JSON results only")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no summary line; failures are still listed")
     p.set_defaults(func=run_detect)
+    c = sub.add_parser(
+        "calibrate", help="calibrate a camera from a folder of checkerboard photos",
+        description="Detect the board in every image of DIR, calibrate the camera (OpenCV pinhole or fisheye, "
+                    "outlier views rejected) and write calibration.json, calibration.yaml (OpenCV), corners.vnl "
+                    "(mrcal), points.npz (object/image points), residuals.png and residuals/<image>.jpg into "
+                    "--out. Exit status: 0 calibrated, 1 calibration failed, 2 usage or model error.")
+    c.add_argument("dir", type=Path, help="folder of images (searched recursively)")
+    c.add_argument("--board", type=board_size, required=True, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
+    c.add_argument("--square", type=float, required=True, help="square side, in the unit wanted for poses")
+    c.add_argument("--model-type", choices=["pinhole", "fisheye"], default="pinhole", help="lens model (default pinhole)")
+    c.add_argument("--model", default=None, help="bundled detector model name or .onnx path (default: paper)")
+    c.add_argument("--threads", type=positive_int, default=None, metavar="N", help="inference threads")
+    c.add_argument("--out", type=Path, required=True, help="output folder")
+    c.add_argument("--quiet", action="store_true", help="no progress bar")
+    c.set_defaults(func=run_calibrate)
     return parser
+
+
+def board_size(text: str) -> tuple[int, int]:
+    """'9x6' -> (9, 6): inner corners, columns x rows."""
+    cols, sep, rows = text.lower().partition("x")
+    if not (sep and cols.isdigit() and rows.isdigit() and int(cols) >= 2 and int(rows) >= 2):
+        raise argparse.ArgumentTypeError(f"expected COLSxROWS inner corners such as 9x6, got {text!r}")
+    return int(cols), int(rows)
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    """`ccdn calibrate`: detect boards in a folder, calibrate, write the files, print a report."""
+    from tqdm import tqdm
+
+    from .batch import collect_inputs
+    from .calibration import CalibrationError, View, calibrate, report, write_outputs
+    from .detector import Detector
+
+    try:
+        detector = Detector(args.model, args.threads)
+        items, failures = collect_inputs([args.dir], skip=args.out)
+    except (OSError, ValueError) as exc:  # ModelError is a ValueError
+        print(f"ccdn: {exc}", file=sys.stderr)
+        return 2
+    reasons = [f.reason for f in failures]
+    views, missing, sizes, paths = [], [], set(), {}
+    for item in tqdm(items, unit="img", disable=args.quiet or not sys.stderr.isatty(), file=sys.stderr):
+        try:
+            result = detector.detect(item.path, boards=True, board_size=args.board)
+        except (OSError, ValueError) as exc:  # ImageError is a ValueError
+            reasons.append(str(exc))
+            continue
+        sizes.add(result.image_size)
+        paths[item.name] = item.path
+        if result.boards:
+            views.append(View.from_board(item.name, result.boards[0]))
+        else:
+            missing.append(item.name)
+    for reason in reasons:
+        print(f"ccdn: skipped: {reason}", file=sys.stderr)
+    print(f"ccdn: a {args.board[0]}x{args.board[1]} board found in {len(views)} of {len(items)} images", file=sys.stderr)
+    if len(sizes) > 1:
+        print(f"ccdn: the images differ in size ({', '.join(f'{w}x{h}' for w, h in sorted(sizes))})", file=sys.stderr)
+        return 1
+    try:
+        calibration = calibrate(views, sizes.pop() if sizes else (0, 0), args.board, args.square, args.model_type)
+    except CalibrationError as exc:
+        print(f"ccdn: calibration failed: {exc}", file=sys.stderr)
+        return 1
+    try:
+        write_outputs(args.out, calibration, views, missing, load=lambda name: detector.load(paths[name]))
+    except (OSError, ValueError) as exc:
+        print(f"ccdn: cannot write the results: {exc}", file=sys.stderr)
+        return 1
+    print(report(calibration))
+    print(f"ccdn: results in {args.out}", file=sys.stderr)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

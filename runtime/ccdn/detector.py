@@ -7,8 +7,9 @@ import time
 
 import numpy as np
 
+from .grid import find_boards
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
-from .peaks import find_peaks, kmeans_outliers
+from .peaks import find_peaks, kmeans_outliers, suppress
 from .refine import refine
 from .result import Detection
 from .session import ScoreSession
@@ -43,8 +44,12 @@ class Detector:
             return to_gray(image, self.max_pixels)
         return read_gray(image, self.max_pixels)
 
-    def detect(self, image: ImageInput) -> Detection:
-        """Inner corners of the checkerboard(s) in `image` (path, or HxW / HxWx3 BGR array)."""
+    def detect(self, image: ImageInput, *, boards: bool = False, board_size: tuple[int, int] | None = None) -> Detection:
+        """Inner corners of the checkerboard(s) in `image` (path, or HxW / HxWx3 BGR array).
+
+        boards=True also links the corners into boards (ccdn.grid.find_boards; board_size=(cols, rows)
+        keeps only boards of that size); otherwise Detection.boards is empty and costs nothing.
+        """
         t0 = time.perf_counter()
         gray = self.load(image)
         t1 = time.perf_counter()
@@ -55,10 +60,14 @@ class Detector:
             keep = kmeans_outliers(xy)
             xy, values = xy[keep], values[keep]
         refined, ok = refine(gray, xy, self.refinement)
+        refined, values = refined[ok], values[ok]
+        distinct = suppress(refined, radius=1.0)  # refinement can move two peaks onto one corner
+        refined, values = refined[distinct], values[distinct]
+        found = find_boards(gray, refined, values, board_size) if boards else ()
         t3 = time.perf_counter()
         timings = {"load": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3, "postprocess": (t3 - t2) * 1e3}
-        return Detection(refined[ok], np.clip(values[ok], 0, 1), (gray.shape[1], gray.shape[0]),
-                         f"{self.model.name} {self.model.version}", timings)
+        return Detection(refined, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]),
+                         f"{self.model.name} {self.model.version}", found, timings)
 
     def scores(self, image: ImageInput) -> np.ndarray:
         """The network's raw (H, W) float32 score map, for inspection."""

@@ -3,8 +3,8 @@
 `saddle`: fit f(x, y) = a x^2 + b xy + c y^2 + d x + e y + g by least squares to a Gaussian-smoothed
 patch around each corner (one matrix product for all corners: the fit's pseudo-inverse depends
 only on the patch grid), step to the quadric's stationary point, re-centre and repeat. A checker
-corner is a saddle (4ac - b^2 < 0); a corner whose fit is not a saddle, or that walks away from its
-peak, is flagged as not converged.
+corner is a clear saddle (sqrt(b^2 - 4ac) >= `min_saddle` gray levels / px^2); a corner whose fit is
+no saddle (flat, an edge, a blob), or that walks away from its peak, is flagged as not converged.
 
 `cornersubpix`: OpenCV's gradient-orthogonality refinement (one C call for all corners).
 Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
@@ -30,7 +30,7 @@ def _fit_matrix(radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigma: float = 1.2,
-                         iterations: int = 3, max_shift: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+                         iterations: int = 3, max_shift: float = 2.0, min_saddle: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """Refine integer peaks xy (N, 2) to sub-pixel saddle points of the smoothed image.
 
     Returns refined xy (N, 2) float32 and a converged mask (N,) bool.
@@ -54,7 +54,7 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
         det = 4 * a * c - b * b
         safe = np.where(np.abs(det) < 1e-12, 1e-12, det)
         offset = np.stack([(b * e - 2 * c * d) / safe, (b * d - 2 * a * e) / safe], 1)
-        ok = (det < 0) & np.all(np.isfinite(offset), 1)
+        ok = (det < -min_saddle * min_saddle) & np.all(np.isfinite(offset), 1)
         step = np.rint(np.clip(np.where(ok[:, None], offset, 0), -radius, radius)).astype(np.int64)
         if not step.any():
             break

@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .grid import Board
 
 
 def _frozen(a: np.ndarray, dtype, shape_tail: tuple[int, ...]) -> np.ndarray:
@@ -22,12 +26,15 @@ class Detection:
     score: (N,) float32 confidence in [0, 1] (the network's score at the corner, clipped).
     Corners are sorted by descending score, ties by (y, x); no corners gives arrays of length 0.
     image_size: (width, height) of the input; model: name and version of the model used.
+    boards: the checkerboards the corners form (ccdn.grid.Board, indices into xy), largest first;
+    empty unless asked for (Detector.detect(..., boards=True)).
     """
 
     xy: np.ndarray
     score: np.ndarray
     image_size: tuple[int, int]
     model: str = ""
+    boards: tuple[Board, ...] = ()
     timings_ms: dict[str, float] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
@@ -45,6 +52,7 @@ class Detection:
             "model": self.model,
             "corners": [[round(float(x), 3), round(float(y), 3)] for x, y in self.xy],
             "score": [round(float(s), 4) for s in self.score],
+            "boards": [b.to_dict() for b in self.boards],
         }
 
     def to_json(self) -> str:

@@ -53,7 +53,8 @@ class SceneBank:
     def crops(self, rng: np.random.Generator, batch: int, size: int) -> tuple[np.ndarray, np.ndarray]:
         """(batch, size, size) float32 crops in [0, 1] and targets (1 corner, 0 not, -1 ignored).
 
-        Most crops are centred near a corner; a third touch an image border so the network learns
+        The pixel nearest each corner is 1 and its 8 neighbours are ignored (a corner between two
+        pixels is no error on either); most crops are centred near a corner; a third touch an image border so the network learns
         what the zero padding looks like; each is rotated by a random multiple of 90 deg and flipped.
         """
         xs = np.empty((batch, size, size), np.float32)
@@ -74,6 +75,7 @@ class SceneBank:
             x0, y0 = int(np.clip(x0, 0, w - size)), int(np.clip(y0, 0, h - size))
             target = np.zeros((size, size), np.float32)
             _stamp(target, self.ignore[i], x0, y0, -1.0, radius=1)
+            _stamp(target, corners, x0, y0, -1.0, radius=1)  # a corner's 8 neighbours: neither class
             _stamp(target, corners, x0, y0, 1.0, radius=0)
             crop = image[y0 : y0 + size, x0 : x0 + size].astype(np.float32) / 255
             k = int(rng.integers(4))

@@ -35,7 +35,8 @@ class CCDN(nn.Module):
     def convs(self) -> list[nn.Conv2d]:
         return [self.conv1, self.conv2, self.conv3, self.conv4, self.conv5, self.conv6]
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, pre_activation: bool = False) -> torch.Tensor:
+        """Scores; with pre_activation=True, the last conv's output before its ReLU (for the loss)."""
         x = F.relu(self.conv1(x))
         x = F.max_pool2d(F.pad(x, (0, 1, 0, 1)), 2, stride=1)
         x = F.relu(self.conv2(x))
@@ -43,7 +44,8 @@ class CCDN(nn.Module):
         x = F.relu(self.conv4(x))
         x = F.max_pool2d(F.pad(x, (1, 0, 1, 0)), 2, stride=1)
         x = F.relu(self.conv5(x))
-        return F.relu(self.conv6(x))
+        z = self.conv6(x)
+        return z if pre_activation else F.relu(z)
 
 
 def parameter_count(model: nn.Module) -> int:

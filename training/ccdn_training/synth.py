@@ -47,8 +47,10 @@ class SceneConfig:
     p_no_board: float = 0.08
     p_two_boards: float = 0.12
     square_px: tuple[float, float] = (6.0, 110.0)
+    min_tilt_deg: float = 0.0
     max_tilt_deg: float = 70.0
     p_radial: float = 0.35
+    radial_k1: tuple[float, float] = (-0.12, 0.45)  # > 0: barrel
     p_fisheye: float = 0.12
     p_margin: float = 0.6
     p_occluder: float = 0.2
@@ -56,6 +58,7 @@ class SceneConfig:
     p_blur: float = 0.45
     p_motion: float = 0.1
     p_defocus: float = 0.1
+    p_noise: float = 0.6
     noise_sigma: tuple[float, float] = (0.0, 0.06)
     p_jpeg: float = 0.3
     p_low_contrast: float = 0.15
@@ -132,7 +135,7 @@ def random_lens(rng: np.random.Generator, cfg: SceneConfig) -> Lens:
     if u < cfg.p_fisheye + cfg.p_radial:
         r_max = np.hypot(w, h) / 2 / f
         for _ in range(20):
-            k1, k2 = rng.uniform(-0.12, 0.45), rng.uniform(-0.05, 0.15)
+            k1, k2 = rng.uniform(*cfg.radial_k1), rng.uniform(-0.05, 0.15)
             r = np.linspace(0, r_max, 64)
             if np.all(np.diff(r * (1 + k1 * r**2 + k2 * r**4)) > 0):  # monotonic: a real lens
                 p1, p2 = rng.normal(0, 0.004, 2)
@@ -200,7 +203,8 @@ def random_board(rng: np.random.Generator, cfg: SceneConfig, lens: Lens) -> Boar
     cols, rows = random_board_size(rng, cfg)
     square = np.exp(rng.uniform(*np.log(cfg.square_px)))
     z = lens.f / square
-    tilt = np.radians(cfg.max_tilt_deg) * np.sqrt(rng.random())
+    lo, hi = np.radians(cfg.min_tilt_deg), np.radians(cfg.max_tilt_deg)
+    tilt = lo + (hi - lo) * np.sqrt(rng.random())
     rot = _rotation(tilt, rng.uniform(0, 2 * np.pi), rng.uniform(0, 2 * np.pi))
     cx = rng.uniform(0.1, 0.9) * cfg.width
     cy = rng.uniform(0.1, 0.9) * cfg.height
@@ -252,8 +256,10 @@ def random_background(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- photometry
-def _blur_and_light(img: np.ndarray, rng: np.random.Generator, cfg: SceneConfig) -> np.ndarray:
+def _blur_and_light(img: np.ndarray, rng: np.random.Generator, cfg: SceneConfig) -> tuple[np.ndarray, float]:
+    """Light, shadow, glare, contrast and blur; also returns the factor applied to the contrast."""
     h, w = img.shape
+    gain = 1.0
     small = rng.random((3, 3)).astype(np.float32)
     light = cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
     img = img * (rng.uniform(0.6, 1.0) + rng.uniform(0.0, 0.5) * (light - 0.5))
@@ -267,12 +273,14 @@ def _blur_and_light(img: np.ndarray, rng: np.random.Generator, cfg: SceneConfig)
         yy, xx = np.mgrid[0:h, 0:w]
         c = rng.random(2) * [w, h]
         s = rng.uniform(10, 120)
-        img = img + rng.uniform(0.3, 1.2) * np.exp(-((xx - c[0]) ** 2 + (yy - c[1]) ** 2) / (2 * s * s))
+        img = img + rng.uniform(0.2, 0.7) * np.exp(-((xx - c[0]) ** 2 + (yy - c[1]) ** 2) / (2 * s * s))
     if rng.random() < cfg.p_low_contrast:
         m = rng.uniform(0.2, 0.8)
-        img = m + (img - m) * rng.uniform(0.12, 0.4)
+        factor = rng.uniform(0.2, 0.45)
+        img, gain = m + (img - m) * factor, gain * factor
     if rng.random() < cfg.p_dark:
-        img = img * rng.uniform(0.08, 0.3)
+        factor = rng.uniform(0.15, 0.35)
+        img, gain = img * factor, gain * factor
     img = np.clip(img, 0, 1).astype(np.float32)
     if rng.random() < cfg.p_blur:
         img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.8))
@@ -288,13 +296,14 @@ def _blur_and_light(img: np.ndarray, rng: np.random.Generator, cfg: SceneConfig)
         rot = cv2.getRotationMatrix2D(((n - 1) / 2, (n - 1) / 2), rng.uniform(0, 180), 1.0)
         kernel = cv2.warpAffine(kernel, rot, (n, n))
         img = cv2.filter2D(img, -1, kernel / kernel.sum())
-    return img
+    return img, gain
 
 
-def _finish(img: np.ndarray, rng: np.random.Generator, cfg: SceneConfig) -> np.ndarray:
+def _finish(img: np.ndarray, rng: np.random.Generator, cfg: SceneConfig, max_sigma: float) -> np.ndarray:
+    """Inversion, noise (at most `max_sigma`, so the corners stay visible), 8 bits, JPEG."""
     if rng.random() < cfg.p_invert:
         img = 1.0 - img
-    sigma = rng.uniform(*cfg.noise_sigma) if rng.random() < 0.6 else 0.0
+    sigma = min(rng.uniform(*cfg.noise_sigma), max_sigma) if rng.random() < cfg.p_noise else 0.0
     img = img + rng.normal(0, 1, img.shape).astype(np.float32) * sigma
     out = np.clip(img * 255 + 0.5, 0, 255).astype(np.uint8)
     if rng.random() < cfg.p_jpeg:
@@ -334,8 +343,9 @@ def render_scene(rng: np.random.Generator, cfg: SceneConfig | None = None) -> Sc
     img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
 
     corners, board_index, grid, ignore = _labels(boards, covers, lens, valid, w, h)
-    img = _blur_and_light(img, rng, cfg)
-    image = _finish(img, rng, cfg)
+    img, gain = _blur_and_light(img, rng, cfg)
+    contrast = min((b.light - b.dark for b in boards), default=1.0) * gain
+    image = _finish(img, rng, cfg, max_sigma=0.35 * contrast)
     return Scene(image, corners, board_index, grid, ignore, [(b.cols, b.rows) for b in boards])
 
 

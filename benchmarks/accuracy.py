@@ -1,0 +1,162 @@
+"""Accuracy benchmark: the paper's metrics on real photos (../shared/data/real-dev) and on renders.
+
+Metrics (paper section 4, 5 px match radius): each label's nearest detection within 5 px is a hit
+(accuracy: its distance in px, mean and 95th percentile); a label without one is missed; further
+detections within 5 px of an already-hit label are doubles; detections near no label are false
+positives (renders: detections near a deliberately ignored, e.g. occluded, corner are not counted).
+Reported per source and overall, with precision and recall.
+
+    python benchmarks/accuracy.py [--model paper] [--refinement saddle] [--json out/accuracy.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+import ccdn
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL_DEV = ROOT.parent / "shared" / "data" / "real-dev"
+MATCH_RADIUS = 5.0
+
+
+def match(det: np.ndarray, labels: np.ndarray, ignore: np.ndarray | None = None, radius: float = MATCH_RADIUS) -> dict:
+    """Counts and hit distances of one image's detections (N, 2) against its labels (M, 2).
+
+    Detections and labels are paired one-to-one, closest pairs first, within `radius`; an unpaired
+    detection within `radius` of a label is a double, one farther from every label a false positive.
+    """
+    det = det.reshape(-1, 2).astype(np.float64)
+    labels = labels.reshape(-1, 2).astype(np.float64)
+    if ignore is not None and len(ignore) and len(det):
+        near_ignored = np.linalg.norm(det[:, None] - ignore[None], axis=2).min(1) < radius
+        far_from_labels = (np.linalg.norm(det[:, None] - labels[None], axis=2).min(1) >= radius
+                           if len(labels) else np.ones(len(det), bool))
+        det = det[~(near_ignored & far_from_labels)]
+    out = {"labels": len(labels), "detections": len(det), "hits": 0, "missed": len(labels), "double": 0,
+           "false_positives": len(det), "errors": []}
+    if len(det) == 0 or len(labels) == 0:
+        return out
+    d = np.linalg.norm(det[:, None] - labels[None], axis=2)  # (N, M)
+    # one-to-one: closest pairs first, each detection and each label used once
+    di, li = np.nonzero(d < radius)
+    det_used, label_used = np.zeros(len(det), bool), np.zeros(len(labels), bool)
+    for k in np.argsort(d[di, li], kind="stable"):
+        i, j = di[k], li[k]
+        if not det_used[i] and not label_used[j]:
+            det_used[i] = label_used[j] = True
+            out["errors"].append(float(d[i, j]))
+    near = (d < radius).any(1)
+    out["hits"] = int(label_used.sum())
+    out["missed"] = int((~label_used).sum())
+    out["false_positives"] = int((~near).sum())
+    out["double"] = int((near & ~det_used).sum())
+    return out
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Aggregate per-image match counts into the paper's figures."""
+    labels = sum(r["labels"] for r in rows)
+    dets = sum(r["detections"] for r in rows)
+    hits = sum(r["hits"] for r in rows)
+    errors = np.array([e for r in rows for e in r["errors"]])
+    return {
+        "images": len(rows),
+        "labels": labels,
+        "detections": dets,
+        "accuracy_px": float(errors.mean()) if errors.size else None,
+        "accuracy_p95_px": float(np.percentile(errors, 95)) if errors.size else None,
+        "missed_pct": 100.0 * (labels - hits) / labels if labels else 0.0,
+        "double_pct": 100.0 * sum(r["double"] for r in rows) / labels if labels else 0.0,
+        "false_positives": sum(r["false_positives"] for r in rows),
+        "fp_per_image": sum(r["false_positives"] for r in rows) / max(len(rows), 1),
+        "precision": hits / dets if dets else None,
+        "recall": hits / labels if labels else None,
+    }
+
+
+def real_dev_cases():
+    """(group, name, image path, labels (M, 2)) for each labelled real photo."""
+    meta = json.loads((REAL_DEV / "labels.json").read_text())
+    for item in meta["images"]:
+        labels = np.concatenate([np.asarray(b["corners"], np.float64).reshape(-1, 2) for b in item["boards"]])
+        group = item["source"].split("@")[0]
+        yield group, item["file"], REAL_DEV / "images" / item["file"], labels
+
+
+def synthetic_cases(count: int, seed: int):
+    """Renders of the training distribution from seeds no training run uses, and boardless scenes."""
+    from ccdn_training.synth import SceneConfig, render_scene
+
+    for i in range(count):
+        scene = render_scene(np.random.default_rng(seed + i), SceneConfig(p_no_board=0.0))
+        yield "synthetic", f"render-{seed + i}", scene.image, scene.corners, scene.ignore
+    for i in range(count // 3):
+        scene = render_scene(np.random.default_rng(seed + 10_000 + i), SceneConfig(p_no_board=1.0))
+        yield "synthetic-no-board", f"empty-{seed + 10_000 + i}", scene.image, scene.corners, scene.ignore
+
+
+def evaluate(detector: ccdn.Detector, synthetic: int, seed: int) -> dict:
+    groups: dict[str, list[dict]] = defaultdict(list)
+    per_image = []
+    if REAL_DEV.is_dir():
+        for group, name, path, labels in real_dev_cases():
+            r = match(detector.detect(path).xy, labels)
+            groups[group].append(r)
+            per_image.append({"group": group, "image": name, **{k: v for k, v in r.items() if k != "errors"}})
+    else:
+        print(f"note: {REAL_DEV} not found; real-dev skipped", file=sys.stderr)
+    for group, name, image, labels, ignore in synthetic_cases(synthetic, seed):
+        r = match(detector.detect(image).xy, labels, ignore)
+        groups[group].append(r)
+        per_image.append({"group": group, "image": name, **{k: v for k, v in r.items() if k != "errors"}})
+    summary = {g: summarise(rows) for g, rows in sorted(groups.items())}
+    real = [r for g, rows in groups.items() if not g.startswith("synthetic") for r in rows]
+    if real:
+        summary["real-dev (all)"] = summarise(real)
+    return {"groups": summary, "per_image": per_image}
+
+
+def format_table(groups: dict) -> str:
+    head = f"{'set':<34}{'imgs':>5}{'labels':>7}{'acc px':>8}{'p95':>7}{'miss %':>8}{'dbl %':>7}{'FP':>5}{'FP/img':>7}{'prec':>7}{'recall':>7}"
+    lines = [head, "-" * len(head)]
+    fmt = lambda v, spec: format(v, spec) if v is not None else format("-", spec.rstrip("f").split(".")[0])  # noqa: E731
+    for name, s in groups.items():
+        lines.append(f"{name:<34}{s['images']:>5}{s['labels']:>7}{fmt(s['accuracy_px'], '>8.3f')}{fmt(s['accuracy_p95_px'], '>7.2f')}"
+                     f"{s['missed_pct']:>8.2f}{s['double_pct']:>7.2f}{s['false_positives']:>5}{s['fp_per_image']:>7.2f}"
+                     f"{fmt(s['precision'], '>7.3f')}{fmt(s['recall'], '>7.3f')}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", default=None, help="bundled model name or .onnx path (default: paper)")
+    parser.add_argument("--refinement", default="saddle")
+    parser.add_argument("--no-cluster", action="store_true", help="skip the paper's k-means outlier removal")
+    parser.add_argument("--synthetic", type=int, default=60, help="number of renders (plus a third as many boardless)")
+    parser.add_argument("--seed", type=int, default=5_000_000)
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--json", type=Path, default=ROOT / "out" / "accuracy.json")
+    args = parser.parse_args(argv)
+    detector = ccdn.Detector(args.model, args.threads, refinement=args.refinement, cluster=not args.no_cluster)
+    t0 = time.time()
+    result = evaluate(detector, args.synthetic, args.seed)
+    result["config"] = {"model": detector.model.name, "version": detector.model.version, "refinement": args.refinement,
+                        "cluster": not args.no_cluster, "match_radius_px": MATCH_RADIUS, "seed": args.seed,
+                        "machine": platform.processor() or platform.machine(), "seconds": round(time.time() - t0, 1)}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=1))
+    print(format_table(result["groups"]))
+    print(f"written {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+"""Latency benchmark: per-stage times of Detector.detect at 640x480 and 2000x1500, 1 and 2 threads.
+
+Frames are the real-dev photos (or the bundled examples when ../shared is absent) converted to gray
+and resized to each size, decoded once up front: the timed call goes from a uint8 frame to refined
+corners. Each configuration gets a warm-up pass, then `--repeat` passes over all frames; we report
+the median and the 10th/90th percentiles per stage. OpenCV's findChessboardCornersSB, given the true
+board size, runs on the same frames for comparison. Cold start (import + session + first detect)
+is timed in a fresh process; peak RSS is the process's high-water mark after each size.
+
+    python benchmarks/latency.py [--model paper] [--repeat 3] [--json out/latency.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+import ccdn
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL_DEV = ROOT.parent / "shared" / "data" / "real-dev"
+SIZES = [(640, 480), (2000, 1500)]
+
+
+def load_frames(limit: int) -> list[tuple[np.ndarray, tuple[int, int] | None]]:
+    """Gray frames with their board size (cols, rows), from real-dev or the bundled examples."""
+    if (REAL_DEV / "labels.json").is_file():
+        meta = json.loads((REAL_DEV / "labels.json").read_text())["images"][:limit]
+        return [(cv2.imread(str(REAL_DEV / "images" / m["file"]), cv2.IMREAD_GRAYSCALE),
+                 (m["boards"][0]["cols"], m["boards"][0]["rows"])) for m in meta]
+    return [(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), None) for p in sorted((ROOT / "examples").glob("*.jpg"))]
+
+
+def stats(samples: list[float]) -> dict:
+    a = np.asarray(samples)
+    return {"median_ms": float(np.median(a)), "p10_ms": float(np.percentile(a, 10)), "p90_ms": float(np.percentile(a, 90))}
+
+
+def time_detector(detector: ccdn.Detector, frames: list[np.ndarray], repeat: int) -> dict:
+    for f in frames[:3]:
+        detector.detect(f)
+    stages: dict[str, list[float]] = {"total": []}
+    for _ in range(repeat):
+        for f in frames:
+            t0 = time.perf_counter()
+            result = detector.detect(f)
+            stages["total"].append((time.perf_counter() - t0) * 1e3)
+            for k, v in result.timings_ms.items():
+                stages.setdefault(k, []).append(v)
+    return {k: stats(v) for k, v in stages.items()}
+
+
+def time_opencv(frames: list[np.ndarray], sizes: list[tuple[int, int] | None], repeat: int) -> dict | None:
+    pairs = [(f, s) for f, s in zip(frames, sizes) if s is not None]
+    if not pairs:
+        return None
+    samples, found = [], 0
+    for _ in range(repeat):
+        for f, s in pairs:
+            t0 = time.perf_counter()
+            ok, _ = cv2.findChessboardCornersSB(f, s)
+            samples.append((time.perf_counter() - t0) * 1e3)
+            found += int(ok)
+    return {"total": stats(samples), "found_fraction": found / len(samples)}
+
+
+def cold_start(model: str | None) -> float:
+    """Seconds for import + Detector + first detect, in a fresh interpreter."""
+    code = ("import time; t=time.perf_counter(); import numpy as np, ccdn; "
+            f"d=ccdn.Detector({model!r}); d.detect(np.zeros((480, 640), np.uint8)); print(time.perf_counter()-t)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return float(out.stdout.strip())
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", default=None)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--frames", type=int, default=12, help="how many real-dev photos to use")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--no-opencv", action="store_true")
+    parser.add_argument("--json", type=Path, default=ROOT / "out" / "latency.json")
+    args = parser.parse_args(argv)
+
+    loaded = load_frames(args.frames)
+    board_sizes = [s for _, s in loaded]
+    report = {"machine": {"cpu": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                          "python": platform.python_version()},
+              "cold_start_ms": cold_start(args.model) * 1e3, "runs": []}
+    for w, h in SIZES:
+        frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA if f.shape[1] > w else cv2.INTER_LINEAR)
+                  for f, _ in loaded]
+        for threads in args.threads:
+            detector = ccdn.Detector(args.model, threads)
+            run = {"size": f"{w}x{h}", "threads": threads, "model": detector.model.name,
+                   "stages": time_detector(detector, frames, args.repeat)}
+            report["runs"].append(run)
+        if not args.no_opencv:
+            cv2.setNumThreads(max(args.threads))
+            report["runs"].append({"size": f"{w}x{h}", "threads": max(args.threads), "model": "opencv-findChessboardCornersSB",
+                                   "stages": time_opencv(frames, board_sizes, 1)})
+        report[f"peak_rss_mb_after_{w}x{h}"] = peak_rss_mb()
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=1))
+    print(format_table(report))
+    print(f"written {args.json}")
+
+
+def format_table(report: dict) -> str:
+    lines = [f"{'size':<11}{'thr':>4}  {'model':<32}{'total ms':>10}{'p10-p90':>15}{'load':>8}{'network':>9}{'post':>8}"]
+    for run in report["runs"]:
+        s = run["stages"]
+        if s is None:
+            continue
+        t = s["total"]
+        stage = lambda k: f"{s[k]['median_ms']:>8.1f}" if k in s else f"{'-':>8}"  # noqa: E731
+        lines.append(f"{run['size']:<11}{run['threads']:>4}  {run['model']:<32}{t['median_ms']:>10.1f}"
+                     f"{t['p10_ms']:>7.1f}-{t['p90_ms']:<7.1f}{stage('load')}{stage('network'):>9}{stage('postprocess')}")
+    lines.append(f"cold start (import + session + first 640x480 detect): {report['cold_start_ms']:.0f} ms")
+    lines += [f"{k}: {v:.0f}" for k, v in report.items() if k.startswith("peak_rss")]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,112 @@
+"""ccdn and its peer detectors behind one call, for side-by-side benchmarks.
+
+Every adapter answers `detect(gray, board_size) -> (N, 2) float64 (x, y)` in one pixel convention:
+(0, 0) is the centre of the top-left pixel. All four libraries already use it: on nine clean and
+inverted stress renders with exact labels, each one's mean offset is under 0.015 px in x and in y,
+so there is no 0.5 px shift to correct.
+Only OpenCV uses `board_size` (cols, rows of inner corners); the others find corners without it.
+Each peer is optional: an adapter whose library is not installed is skipped with a note.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib.metadata import version
+
+import numpy as np
+
+BoardSize = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class Adapter:
+    """A named detector: `detect(gray HxW uint8, board_size)` -> (N, 2) float64 (x, y); `note` says how it runs."""
+
+    name: str
+    detect: Callable[[np.ndarray, BoardSize], np.ndarray]
+    note: str
+
+
+def ccdn_adapter(model: str | os.PathLike | None, threads: int | None) -> Adapter:
+    """ccdn.Detector with its default settings."""
+    import ccdn
+
+    detector = ccdn.Detector(model, threads)
+    return Adapter("ccdn", lambda gray, size: detector.detect(gray).xy.astype(np.float64),
+                   f"model {detector.model.name} {detector.model.version}, {detector.threads} threads")
+
+
+def opencv_adapter(threads: int | None) -> Adapter:
+    """cv2.findChessboardCornersSB given the board size, as it requires; all corners of one board or none."""
+    import cv2
+
+    if threads:
+        cv2.setNumThreads(threads)
+    flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+
+    def detect(gray: np.ndarray, size: BoardSize) -> np.ndarray:
+        found, corners = cv2.findChessboardCornersSB(gray, size, flags=flags)
+        return corners.reshape(-1, 2).astype(np.float64) if found else np.zeros((0, 2))
+
+    return Adapter("opencv", detect, f"OpenCV {cv2.__version__} findChessboardCornersSB(EXHAUSTIVE | ACCURACY), "
+                                     f"{cv2.getNumThreads()} threads; needs the board size; finds one board at most")
+
+
+def chess_corners_adapter() -> Adapter:
+    """chess_corners.Detector with the library's default config; orientation off (unused, positions unchanged)."""
+    import chess_corners
+
+    detector = chess_corners.Detector(chess_corners.DetectorConfig().without_orientation())
+
+    def detect(gray: np.ndarray, size: BoardSize) -> np.ndarray:
+        return detector.detect(np.ascontiguousarray(gray)).xy.astype(np.float64)
+
+    return Adapter("chess-corners", detect, f"chess-corners {version('chess_corners')}: ChESS, default DetectorConfig "
+                                            "without orientation; the library's own threading")
+
+
+def libcbdetect_adapter() -> Adapter:
+    """libCBDetect's corner stage (Geiger et al.'s corners, scored and non-maximum suppressed).
+
+    Its board stage is left out: through these bindings (1.0.5) it seeds its search from the clock, so
+    results change run to run; it returns one board only (the last found); it kills the process
+    (SIGFPE) on an image without corners; and, by its source, it reads missing corners (index -1)
+    out of bounds.
+    """
+    from libCBDetect import Checkerboard
+
+    finder = Checkerboard()
+    finder.show_processing = False  # it prints progress to stdout otherwise
+
+    def detect(gray: np.ndarray, size: BoardSize) -> np.ndarray:
+        h, w = gray.shape
+        finder.array_to_image(gray.astype(np.float64).ravel(), h, w)  # copied back into an 8-bit image
+        finder.find_corners()
+        u, v = np.zeros(finder.number_of_corners), np.zeros(finder.number_of_corners)
+        finder.get_corners(u, v)
+        return np.stack([u, v], 1)
+
+    return Adapter("libcbdetect", detect, f"libCBDetect {version('libcbdetect')}: corner stage (find_corners), "
+                                          "default parameters, no board stage")
+
+
+DETECTORS = ["ccdn", "opencv", "chess-corners", "libcbdetect"]
+
+
+def load_adapters(names: list[str], model: str | None, threads: int | None) -> tuple[list[Adapter], dict[str, str]]:
+    """The adapters named, in order, and a note for each one skipped because its library is missing."""
+    factories: dict[str, Callable[[], Adapter]] = {
+        "ccdn": lambda: ccdn_adapter(model, threads),
+        "opencv": lambda: opencv_adapter(threads),
+        "chess-corners": chess_corners_adapter,
+        "libcbdetect": libcbdetect_adapter,
+    }
+    adapters, skipped = [], {}
+    for name in names:
+        try:
+            adapters.append(factories[name]())
+        except ImportError as exc:
+            skipped[name] = f"skipped: {exc}"
+    return adapters, skipped

@@ -1,0 +1,233 @@
+"""Stress benchmark: ccdn and peer detectors side by side on renders with exact labels, one subset per condition.
+
+Every subset starts from a calm scene (one board, squares 15-60 px, tilt <= 40 deg, pinhole lens, no blur,
+noise, JPEG or lighting effects, dark-on-light) and forces one condition on, at full strength:
+fisheye, strong barrel distortion, motion blur, defocus, heavy noise, low contrast, darkness, glare,
+small squares (6-10 px), extreme pose (tilt 60-75 deg), inverted intensity, two boards, partial boards
+(large squares running off the frame), occluders, no board. Blur kernels and glare keep the renderer's
+own ranges (motion 3-9 px, defocus radius 1-3 px).
+
+A render joins its subset only if it shows that condition and no other (`shows_condition`): the board
+wholly in frame (its outer squares too, as OpenCV needs) with every inner corner countable; except that
+two boards need only their inner corners in frame and may overlap, occluded boards must have a hidden
+corner and partial ones a corner outside the frame. No two corners may be closer than 3 px (too close
+to tell apart). Subset k tries seeds 7_000_000 + 10_000 k + i, i = 0, 1, ... in order (disjoint from
+every training and accuracy seed); adding a subset at the end keeps the others' images.
+
+All detectors (benchmarks/peers.py) run on the same images in one run. Metrics are the paper's
+(benchmarks/accuracy.py, 5 px radius), with the renderer's ignored corners (occluded, at the border)
+counted neither way. Where two corners are closer than 10 px (small squares, steep tilt) the radius
+shrinks to half their distance (so >= 1.5 px): one detection can then hit one corner only. Times are
+per image, median over the subset, after one warm-up call.
+
+    python benchmarks/stress.py [--per-subset 20] [--subsets clean noise] [--detectors ccdn opencv]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+from ccdn_training.synth import PAPER_BOARDS, Scene, SceneConfig, render_scene
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).parent))
+from accuracy import MATCH_RADIUS, format_table, match, summarise  # noqa: E402
+from peers import DETECTORS, Adapter, BoardSize, load_adapters  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED_BASE = 7_000_000
+SEEDS_PER_SUBSET = 10_000
+MIN_SPACING_PX = 3.0
+CALM = dict(p_no_board=0.0, p_two_boards=0.0, square_px=(15.0, 60.0), max_tilt_deg=40.0, p_radial=0.0, p_fisheye=0.0,
+            p_occluder=0.0, p_invert=0.0, p_blur=0.0, p_motion=0.0, p_defocus=0.0, p_noise=0.0, p_jpeg=0.0,
+            p_low_contrast=0.0, p_dark=0.0, p_glare=0.0, p_shadow=0.0)
+SUBSETS: dict[str, dict] = {  # name -> SceneConfig fields changed from CALM; order fixes the seeds
+    "clean": {},
+    "fisheye": {"p_fisheye": 1.0},
+    "radial": {"p_radial": 1.0, "radial_k1": (0.25, 0.45)},
+    "motion-blur": {"p_motion": 1.0},
+    "defocus": {"p_defocus": 1.0},
+    "noise": {"p_noise": 1.0, "noise_sigma": (0.04, 0.1)},
+    "low-contrast": {"p_low_contrast": 1.0},
+    "dark": {"p_dark": 1.0},
+    "glare": {"p_glare": 1.0},
+    "small-squares": {"square_px": (6.0, 10.0)},
+    "extreme-pose": {"min_tilt_deg": 60.0, "max_tilt_deg": 75.0},
+    "inverted": {"p_invert": 1.0},
+    "two-boards": {"p_two_boards": 1.0},
+    "partial": {"square_px": (45.0, 110.0)},
+    "occluded": {"p_occluder": 1.0},
+    "no-board": {"p_no_board": 1.0},
+}
+
+
+def _extend(grid: np.ndarray, axis: int) -> np.ndarray:
+    """One more grid line of points on each side along `axis`, extrapolated linearly."""
+    first = 2 * np.take(grid, [0], axis) - np.take(grid, [1], axis)
+    last = 2 * np.take(grid, [-1], axis) - np.take(grid, [-2], axis)
+    return np.concatenate([first, grid, last], axis)
+
+
+def squares_in_frame(scene: Scene) -> bool:
+    """Whether the outer squares of every board, one square beyond its labelled inner corners, lie in the image."""
+    h, w = scene.image.shape
+    for b, (cols, rows) in enumerate(scene.boards):
+        mine = scene.board_index == b
+        if mine.sum() != cols * rows:
+            return False
+        grid = np.zeros((rows, cols, 2))
+        grid[scene.grid[mine, 0], scene.grid[mine, 1]] = scene.corners[mine]
+        outer = _extend(_extend(grid, 0), 1).reshape(-1, 2)
+        if np.any((outer < -0.5) | (outer > [w - 0.5, h - 0.5])):
+            return False
+    return True
+
+
+def closest_spacing(scene: Scene) -> float:
+    """Distance in px of the two closest corners, labelled or ignored (inf with fewer than two)."""
+    points = np.concatenate([scene.corners, scene.ignore]).astype(np.float64)
+    if len(points) < 2:
+        return np.inf
+    d = np.linalg.norm(points[:, None] - points[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return float(d.min())
+
+
+def shows_condition(name: str, scene: Scene) -> bool:
+    """Whether a render shows its subset's condition and no other (see the module docstring)."""
+    if closest_spacing(scene) < MIN_SPACING_PX:
+        return False
+    total = sum(cols * rows for cols, rows in scene.boards)
+    in_frame = len(scene.corners) + len(scene.ignore) == total  # corners outside the image are in neither
+    if name == "partial":
+        return len(scene.corners) > 0 and not in_frame
+    if name == "occluded":
+        return in_frame and len(scene.ignore) > 0
+    if name == "two-boards":
+        return in_frame
+    return len(scene.corners) == total and squares_in_frame(scene)
+
+
+def match_radius(scene: Scene) -> float:
+    """The paper's 5 px, or half the distance of the two closest corners if less (one detection, one corner)."""
+    return min(MATCH_RADIUS, 0.5 * closest_spacing(scene))
+
+
+def render_subset(name: str, count: int) -> tuple[list[tuple[int, Scene]], int]:
+    """The first `count` (seed, scene) of a subset that show its condition, and how many seeds were tried."""
+    cfg = SceneConfig(**{**CALM, **SUBSETS[name]})
+    first = SEED_BASE + SEEDS_PER_SUBSET * list(SUBSETS).index(name)
+    kept = []
+    for seed in range(first, first + SEEDS_PER_SUBSET):
+        scene = render_scene(np.random.default_rng(seed), cfg)
+        if shows_condition(name, scene):
+            kept.append((seed, scene))
+            if len(kept) == count:
+                return kept, seed - first + 1
+    raise RuntimeError(f"subset {name}: only {len(kept)} of {count} scenes in its {SEEDS_PER_SUBSET} seeds")
+
+
+def opencv_size(scene: Scene, fallback: BoardSize) -> BoardSize:
+    """The true size of the scene's most visible board (OpenCV needs one), or `fallback` without a board."""
+    if not scene.boards:
+        return fallback
+    return scene.boards[int(np.bincount(scene.board_index, minlength=len(scene.boards)).argmax())]
+
+
+def most_common_size(scenes: list[Scene]) -> BoardSize:
+    """The board size seen most often (ties: first seen); the first paper board when there is none."""
+    sizes = Counter(size for scene in scenes for size in scene.boards)
+    return sizes.most_common(1)[0][0] if sizes else PAPER_BOARDS[0]
+
+
+def evaluate(sets: dict[str, list[tuple[int, Scene]]], adapters: list[Adapter], show_bar: bool) -> dict:
+    """Match every adapter's detections on every scene; per-subset summaries, times and per-image rows."""
+    fallback = most_common_size([scene for scenes in sets.values() for _, scene in scenes])
+    _, first = next(pair for scenes in sets.values() for pair in scenes)
+    for adapter in adapters:  # warm-up: sessions, caches, lazy initialisation
+        adapter.detect(first.image, opencv_size(first, fallback))
+    subsets, per_image = {}, []
+    pooled: dict[str, list[dict]] = {a.name: [] for a in adapters}
+    pooled_ms: dict[str, list[float]] = {a.name: [] for a in adapters}
+    bar = tqdm(total=sum(map(len, sets.values())) * len(adapters), unit="det", disable=not show_bar, file=sys.stderr)
+    for name, scenes in sets.items():
+        radii = [match_radius(scene) for _, scene in scenes]
+        subsets[name] = {"overrides": SUBSETS[name], "min_radius_px": min(radii), "detectors": {}}
+        for adapter in adapters:
+            rows, times = [], []
+            for (seed, scene), radius in zip(scenes, radii):
+                t0 = time.perf_counter()
+                xy = adapter.detect(scene.image, opencv_size(scene, fallback))
+                times.append((time.perf_counter() - t0) * 1e3)
+                rows.append(match(xy, scene.corners, scene.ignore, radius))
+                per_image.append({"subset": name, "seed": seed, "detector": adapter.name, "ms": times[-1],
+                                  "radius_px": radius, **{k: v for k, v in rows[-1].items() if k != "errors"}})
+                bar.update()
+            subsets[name]["detectors"][adapter.name] = {**summarise(rows), "median_ms": float(np.median(times)),
+                                                        "p90_ms": float(np.percentile(times, 90))}
+            pooled[adapter.name] += rows
+            pooled_ms[adapter.name] += times
+    bar.close()
+    overall = {name: {**summarise(rows), "median_ms": float(np.median(pooled_ms[name])),
+                      "p90_ms": float(np.percentile(pooled_ms[name], 90))} for name, rows in pooled.items()}
+    return {"subsets": subsets, "all": overall, "per_image": per_image,
+            "opencv_board_size": f"true size of the scene's most visible board; boardless scenes: {fallback}, "
+                                 "the run's most common size"}
+
+
+def format_results(result: dict) -> str:
+    """accuracy.py's table, one row per subset and detector (then each detector over all), plus median ms."""
+    rows = {f"{name:<14}{det}": s for name, sub in result["subsets"].items() for det, s in sub["detectors"].items()}
+    rows.update({f"{'all':<14}{det}": s for det, s in result["all"].items()})
+    lines = format_table(rows).splitlines()
+    lines[0] += f"{'ms':>8}"
+    lines[1] += "-" * 8
+    lines[2:] = [line + f"{s['median_ms']:>8.1f}" for line, s in zip(lines[2:], rows.values())]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", default=None, help="ccdn: bundled model name or .onnx path (default: paper)")
+    parser.add_argument("--threads", type=int, default=None, help="ccdn and OpenCV threads (default: each library's)")
+    parser.add_argument("--per-subset", type=int, default=20, help="images per subset")
+    parser.add_argument("--subsets", nargs="+", choices=list(SUBSETS), default=list(SUBSETS))
+    parser.add_argument("--detectors", nargs="+", choices=DETECTORS, default=DETECTORS)
+    parser.add_argument("--json", type=Path, default=ROOT / "out" / "stress.json")
+    args = parser.parse_args(argv)
+    if args.per_subset < 1:
+        parser.error("--per-subset must be at least 1")
+
+    t0 = time.time()
+    show_bar = sys.stderr.isatty()
+    rendered = {name: render_subset(name, args.per_subset)
+                for name in tqdm(args.subsets, unit="subset", desc="render", disable=not show_bar, file=sys.stderr)}
+    adapters, skipped = load_adapters(args.detectors, args.model, args.threads)
+    result = evaluate({name: scenes for name, (scenes, _) in rendered.items()}, adapters, show_bar)
+    for name, (_, tried) in rendered.items():
+        result["subsets"][name]["seeds_tried"] = tried
+    result["config"] = {"per_subset": args.per_subset, "calm": CALM,
+                        "seeds": f"tried in order from {SEED_BASE} + {SEEDS_PER_SUBSET} * subset index",
+                        "match_radius_px": MATCH_RADIUS, "min_spacing_px": MIN_SPACING_PX, "threads": args.threads,
+                        "detectors": {a.name: a.note for a in adapters}, "skipped": skipped,
+                        "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                        "python": platform.python_version(), "seconds": round(time.time() - t0, 1)}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=1))
+    print(format_results(result))
+    for name, note in {**result["config"]["detectors"], **skipped}.items():
+        print(f"{name}: {note}")
+    print(f"opencv board size: {result['opencv_board_size']}")
+    print(f"written {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,88 @@
+"""The Detector end to end with the shipped model on the bundled examples and real photos."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import ccdn
+from conftest import nearest_distances
+
+
+def test_runtime_never_imports_torch_or_training_code():
+    code = "import sys, numpy as np, ccdn; ccdn.detect(np.zeros((64, 64), np.uint8)); " \
+           "bad = [m for m in sys.modules if m.startswith(('torch', 'ccdn_training'))]; assert not bad, bad"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_finds_the_corners_of_a_rendered_board(detector, examples):
+    ex = examples["board"]
+    result = detector.detect(ex["path"])
+    d = nearest_distances(result.xy, ex["corners"])
+    assert (d < 5).mean() >= 0.95
+    assert len(result) <= len(ex["corners"]) + 2
+
+
+def test_image_without_a_board_returns_no_corners(detector, examples):
+    result = detector.detect(examples["no-board"]["path"])
+    assert len(result) == 0
+    assert result.xy.shape == (0, 2) and result.xy.dtype == np.float32
+    assert result.score.shape == (0,) and result.score.dtype == np.float32
+
+
+def test_blank_image_returns_no_corners(detector):
+    assert len(detector.detect(np.full((120, 160), 200, np.uint8))) == 0
+
+
+def test_result_is_frozen_float32_xy_with_scores_in_unit_range(detector, examples):
+    result = detector.detect(examples["board"]["path"])
+    assert result.xy.dtype == np.float32 and result.xy.shape[1] == 2
+    assert np.all((result.score >= 0) & (result.score <= 1))
+    assert np.all(np.diff(result.score) <= 0)
+    with pytest.raises(ValueError):
+        result.xy[0, 0] = 1.0
+    assert result.image_size == (640, 480)
+
+
+def test_pixel_centres_are_integer_coordinates(detector, examples):
+    """Shifting the image right by 3 px shifts every corner by +3.0 in x (no half-pixel offsets)."""
+    import cv2
+
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    shifted = np.zeros_like(gray)
+    shifted[:, 3:] = gray[:, :-3]
+    a, b = detector.detect(gray), detector.detect(shifted)
+    d = np.linalg.norm(a.xy[:, None] + [3, 0] - b.xy[None], axis=2).min(1)
+    assert np.median(d) < 0.05
+
+
+def test_path_and_array_and_bgr_inputs_agree(detector, examples):
+    import cv2
+
+    path = examples["board"]["path"]
+    bgr = cv2.imread(str(path))
+    by_path, by_bgr = detector.detect(path), detector.detect(bgr)
+    assert np.array_equal(by_path.xy, by_bgr.xy)
+
+
+def test_module_level_detect_uses_a_cached_default(examples):
+    assert np.array_equal(ccdn.detect(examples["board"]["path"]).xy, ccdn.detect(examples["board"]["path"]).xy)
+
+
+def test_unknown_model_name_is_a_clear_error():
+    with pytest.raises(ccdn.ModelError, match="unknown model"):
+        ccdn.Detector("no-such-model")
+
+
+def test_paper_model_is_bundled():
+    assert "paper" in ccdn.available_models()
+
+
+def test_finds_most_corners_of_a_real_photo(detector, real_dev):
+    case = next(c for c in real_dev if "uEye.R080" in c["path"].name)
+    result = detector.detect(case["path"])
+    d = nearest_distances(result.xy, case["corners"])
+    assert (d < 5).mean() >= 0.9

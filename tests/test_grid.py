@@ -1,0 +1,200 @@
+"""Grid recovery (ccdn.grid.find_boards) on renders with exact labels and on labelled real photos.
+
+The true corners (plus random false points) are fed in, so these tests do not depend on the model.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+from itertools import islice
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ccdn.grid import Board, find_boards
+
+synth = pytest.importorskip("ccdn_training.synth")
+
+REAL_DEV = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real-dev"
+CLEAN = dict(p_no_board=0.0, p_two_boards=0.0, p_occluder=0.0, p_blur=0.0, p_motion=0.0, p_defocus=0.0,
+             noise_sigma=(0.0, 0.01), p_jpeg=0.0, p_low_contrast=0.0, p_dark=0.0, p_glare=0.0, p_shadow=0.0,
+             square_px=(18.0, 45.0), max_tilt_deg=45.0, p_radial=0.0, p_fisheye=0.0)
+ROTATIONS = [np.array(m) for m in ([[1, 0], [0, 1]], [[0, -1], [1, 0]], [[-1, 0], [0, -1]], [[0, 1], [-1, 0]])]
+
+
+@lru_cache(maxsize=None)
+def render(seed: int, **changes) -> synth.Scene:
+    return synth.render_scene(np.random.default_rng(seed), synth.SceneConfig(**{**CLEAN, **changes}))
+
+
+def whole_boards(n: int, **changes) -> list[synth.Scene]:
+    """The first n renders (by seed) whose single board is entirely visible."""
+    scenes = (render(seed, **{"square_px": (14.0, 22.0), **changes}) for seed in range(50))
+    found = list(islice((s for s in scenes if len(s.corners) == s.boards[0][0] * s.boards[0][1]), n))
+    assert len(found) == n
+    return found
+
+
+def with_false_points(scene: synth.Scene, n: int, seed: int) -> np.ndarray:
+    h, w = scene.image.shape
+    return np.concatenate([scene.corners, np.random.default_rng(seed).random((n, 2)) * [w, h]]).astype(np.float32)
+
+
+def index_map(board: Board, true_grid: np.ndarray) -> np.ndarray | None:
+    """The proper rotation R with found = R @ true + offset for every corner, or None if there is none."""
+    for rot in ROTATIONS:
+        offset = board.grid - true_grid @ rot.T
+        if (offset == offset[0]).all():
+            return rot
+    return None
+
+
+def largest_matching(boards: tuple[Board, ...], wanted: np.ndarray) -> Board:
+    return max(boards, key=lambda b: np.isin(b.corner_index, wanted).sum())
+
+
+@pytest.mark.parametrize("lens", [dict(), dict(p_radial=1.0, radial_k1=(0.3, 0.45)), dict(p_fisheye=1.0)],
+                         ids=["pinhole", "strong-radial", "fisheye"])
+def test_recovers_each_board_with_consistent_indices_and_drops_false_points(lens):
+    found = total = 0
+    for seed in range(4):
+        scene = render(seed, **lens)
+        xy = with_false_points(scene, 40, seed)
+        boards = find_boards(scene.image, xy, np.ones(len(xy)))
+        assert len(boards) == 1
+        board = boards[0]
+        assert (board.corner_index < len(scene.corners)).all(), "a random false point joined the board"
+        assert index_map(board, scene.grid[board.corner_index]) is not None
+        cols, rows = scene.boards[0]
+        if len(board) == len(scene.corners) == cols * rows:  # all visible and all found: the board's extent
+            assert sorted((board.cols, board.rows)) == sorted((cols, rows))
+        found, total = found + len(board), total + len(scene.corners)
+    assert found >= 0.97 * total
+
+
+@pytest.mark.parametrize("invert", [0.0, 1.0], ids=["dark-top-left", "inverted"])
+def test_asymmetric_board_origin_is_the_corner_whose_quad_is_light(invert):
+    """The renderer's quad at (0, 0) is dark (light when inverted); ccdn's (0, 0) quad is light."""
+    for scene in whole_boards(3, board_sizes=((9, 6),), p_invert=invert):
+        (board,) = find_boards(scene.image, scene.corners, np.ones(len(scene.corners)), board_size=(9, 6))
+        true = scene.grid[board.corner_index]
+        expected = true if invert else np.column_stack([5 - true[:, 0], 8 - true[:, 1]])
+        np.testing.assert_array_equal(board.grid, expected)
+
+
+def test_several_boards_are_returned_each_with_its_own_indices():
+    seen = 0
+    for seed in range(6):
+        scene = render(seed, p_two_boards=1.0, square_px=(15.0, 30.0), board_sizes=((7, 5), (6, 4), (5, 5)))
+        xy = with_false_points(scene, 30, seed)
+        boards = find_boards(scene.image, xy, np.ones(len(xy)))
+        for b in range(len(scene.boards)):
+            mine = np.nonzero(scene.board_index == b)[0]
+            if len(mine) < 16:  # mostly hidden behind the other board
+                continue
+            board = largest_matching(boards, mine)
+            assert np.isin(board.corner_index, mine).all(), "two boards were merged"
+            assert index_map(board, scene.grid[board.corner_index]) is not None
+            assert len(board) >= 0.9 * len(mine)
+            seen += 1
+    assert seen >= 8
+
+
+@pytest.mark.parametrize("hole", ["one corner", "a whole column"])
+def test_missing_corners_leave_holes_not_broken_boards(hole):
+    (scene,) = whole_boards(1, board_sizes=((9, 6),), max_tilt_deg=25.0)
+    gone = (scene.grid[:, 0] == 2) & (scene.grid[:, 1] == 4) if hole == "one corner" else scene.grid[:, 1] == 4
+    keep = np.nonzero(~gone)[0]
+    (board,) = find_boards(scene.image, scene.corners[keep], np.ones(len(keep)), board_size=(9, 6))
+    assert len(board) == len(keep)
+    assert index_map(board, scene.grid[keep][board.corner_index]) is not None
+
+
+def test_points_off_any_checkerboard_form_no_board():
+    scene = render(3, p_no_board=1.0)
+    xy = np.random.default_rng(0).random((300, 2)) * [640, 480]
+    assert find_boards(scene.image, xy, np.ones(len(xy))) == ()
+
+
+def test_points_on_a_plain_grid_of_lines_form_no_board():
+    """Crossings of a line grid are regularly spaced but their quads do not alternate dark/light."""
+    image = np.full((240, 320), 200, np.uint8)
+    image[20:220:20, :] = 30
+    image[:, 20:300:20] = 30
+    yy, xx = np.mgrid[20:220:20, 20:300:20]
+    xy = np.column_stack([xx.ravel(), yy.ravel()]).astype(np.float32)
+    assert find_boards(image, xy, np.ones(len(xy))) == ()
+
+
+def test_board_size_prior_keeps_that_size_transposes_it_and_rejects_others():
+    (scene,) = whole_boards(1, board_sizes=((9, 6),))
+    xy, score = scene.corners, np.ones(len(scene.corners))
+    (board,) = find_boards(scene.image, xy, score, board_size=(9, 6))
+    assert (board.cols, board.rows) == (9, 6) and board.grid[:, 1].max() == 8
+    (transposed,) = find_boards(scene.image, xy, score, board_size=(6, 9))
+    assert (transposed.cols, transposed.rows) == (6, 9)
+    assert find_boards(scene.image, xy, score, board_size=(7, 5)) == ()
+    assert find_boards(scene.image, xy, score, board_size=(10, 7)) == ()
+    part = np.nonzero(scene.grid[:, 1] < 7)[0]  # a board cut to 7 x 6
+    assert find_boards(scene.image, xy[part], score[part], board_size=(9, 6)) == ()
+    (partial,) = find_boards(scene.image, xy[part], score[part], board_size=(9, 6), allow_partial=True)
+    assert (partial.cols, partial.rows) == (7, 6)
+
+
+def test_result_does_not_depend_on_input_order():
+    scene = render(0)
+    xy = with_false_points(scene, 30, 0)
+    perm = np.random.default_rng(1).permutation(len(xy))
+    (a,), (b,) = find_boards(scene.image, xy, np.ones(len(xy))), find_boards(scene.image, xy[perm], np.ones(len(xy)))
+    np.testing.assert_array_equal(perm[b.corner_index], a.corner_index)
+    np.testing.assert_array_equal(b.grid, a.grid)
+
+
+def test_board_arrays_are_row_major_frozen_and_json_ready():
+    scene = render(0)
+    (board,) = find_boards(scene.image, scene.corners, np.ones(len(scene.corners)))
+    assert board.corner_index.dtype == np.int64 and board.grid.dtype == np.int32 and board.xy.dtype == np.float32
+    order = board.grid[:, 0] * 1000 + board.grid[:, 1]
+    assert (np.diff(order) > 0).all()
+    np.testing.assert_array_equal(board.xy, scene.corners[board.corner_index])
+    with pytest.raises(ValueError):
+        board.grid[0, 0] = 5
+    d = json.loads(json.dumps(board.to_dict()))
+    assert d["cols"] == board.cols and len(d["corners"]) == len(d["grid"]) == len(board)
+
+
+def test_bad_input_is_refused_and_few_points_give_no_board():
+    scene = render(0)
+    with pytest.raises(ValueError, match="uint8"):
+        find_boards(scene.image.astype(np.float32), scene.corners, np.ones(len(scene.corners)))
+    with pytest.raises(ValueError, match="score"):
+        find_boards(scene.image, scene.corners, np.ones(3))
+    assert find_boards(scene.image, scene.corners[:5], np.ones(5)) == ()
+    assert find_boards(scene.image, np.zeros((0, 2)), np.zeros(0)) == ()
+
+
+def test_real_photos_labelled_corners_link_into_the_labelled_board():
+    if not (REAL_DEV / "labels.json").is_file():
+        pytest.skip("../shared/data/real-dev is absent")
+    import cv2
+
+    images = json.loads((REAL_DEV / "labels.json").read_text())["images"]
+    recovered = same_origin = asymmetric = 0
+    for meta in images:
+        gray = cv2.imread(str(REAL_DEV / "images" / meta["file"]), cv2.IMREAD_GRAYSCALE)
+        label = meta["boards"][0]
+        cols, rows = label["cols"], label["rows"]
+        xy = np.asarray(label["corners"], np.float32).reshape(-1, 2)
+        free = find_boards(gray, xy, np.ones(len(xy)))
+        boards = find_boards(gray, xy, np.ones(len(xy)), board_size=(cols, rows))
+        if len(boards) == 1 and len(boards[0]) == cols * rows and sorted((free[0].cols, free[0].rows)) == sorted((cols, rows)):
+            recovered += 1
+            labelled = np.column_stack(np.divmod(boards[0].corner_index, cols))  # labels are row-major
+            if (cols + rows) % 2:
+                asymmetric += 1
+                same_origin += np.array_equal(labelled, boards[0].grid)
+    assert recovered >= len(images) - 1
+    # the labels come from cv2.findChessboardCornersSB, whose (0, 0) quad is light as well
+    assert same_origin >= 0.9 * asymmetric

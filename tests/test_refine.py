@@ -1,0 +1,39 @@
+"""Sub-pixel refinement on renders with exact labels."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ccdn.refine import refine
+
+
+@pytest.fixture(scope="module")
+def clean_scene():
+    from ccdn_training.synth import SceneConfig, render_scene
+
+    cfg = SceneConfig(p_no_board=0, p_two_boards=0, p_occluder=0, p_blur=0, p_motion=0, p_defocus=0, noise_sigma=(0, 0),
+                      p_jpeg=0, p_glare=0, p_shadow=0, p_dark=0, p_low_contrast=0, square_px=(20, 30), max_tilt_deg=30,
+                      p_radial=0, p_fisheye=0)
+    return render_scene(np.random.default_rng(11), cfg)
+
+
+@pytest.mark.parametrize("method", ["saddle", "cornersubpix"])
+def test_refinement_recovers_exact_corners_from_integer_peaks(clean_scene, method):
+    start = np.rint(clean_scene.corners).astype(np.int32)
+    refined, ok = refine(clean_scene.image, start, method)
+    assert ok.mean() > 0.95
+    err = np.linalg.norm(refined[ok] - clean_scene.corners[ok], axis=1)
+    assert err.mean() < 0.1
+    assert err.mean() < np.linalg.norm(start - clean_scene.corners, axis=1).mean() / 3
+
+
+def test_a_flat_patch_does_not_converge():
+    flat = np.full((50, 50), 128, np.uint8)
+    refined, ok = refine(flat, np.array([[25, 25]], np.int32), "saddle")
+    assert not ok[0]
+
+
+def test_no_corners_refine_to_empty_arrays():
+    refined, ok = refine(np.zeros((20, 20), np.uint8), np.zeros((0, 2), np.int32), "saddle")
+    assert refined.shape == (0, 2) and ok.shape == (0,)

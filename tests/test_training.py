@@ -1,0 +1,129 @@
+"""The training package: the paper's network, its loss, the renderer's labels and the ONNX export."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from ccdn_training.export import to_onnx  # noqa: E402
+from ccdn_training.loss import ccdn_loss  # noqa: E402
+from ccdn_training.model import CCDN, parameter_count  # noqa: E402
+from ccdn_training.synth import SceneConfig, render_scene  # noqa: E402
+from ccdn_training.train import staircase_lr  # noqa: E402
+
+
+def test_network_has_the_papers_16301_parameters():
+    assert parameter_count(CCDN()) == 16301
+
+
+def test_score_map_has_the_input_size():
+    out = CCDN()(torch.zeros(2, 1, 37, 51))
+    assert out.shape == (2, 1, 37, 51)
+
+
+def test_pool_shifts_cancel_so_a_point_stays_on_its_pixel():
+    """With pass-through convolutions, a bright pixel must come out centred on the same pixel."""
+    model = CCDN().eval()
+    with torch.no_grad():
+        for conv in model.convs():
+            conv.weight.zero_()
+            conv.bias.zero_()
+            k = conv.weight.shape[-1] // 2
+            conv.weight[0, 0, k, k] = 1.0
+        x = torch.zeros(1, 1, 21, 21)
+        x[0, 0, 9, 12] = 1.0
+        out = model(x)[0, 0].numpy()
+    ys, xs = np.nonzero(out)
+    assert (xs.mean(), ys.mean()) == (12.0, 9.0)
+    assert xs.min() == 11 and xs.max() == 13  # spread symmetrically by the two pools
+
+
+def test_loss_normalises_positives_and_negatives_separately():
+    model = CCDN()
+    score = torch.full((1, 1, 4, 4), 0.5)
+    target = torch.zeros(1, 1, 4, 4)
+    target[0, 0, 0, 0] = 1
+    target[0, 0, 3, 3] = -1  # ignored
+    expected = -np.log(0.5) - np.log(0.5) + 0.5 * 0.01 * sum(float((p.detach() ** 2).sum()) for p in model.parameters())
+    assert float(ccdn_loss(score, target, model)) == pytest.approx(expected, rel=1e-5)
+
+
+def test_a_dead_output_still_gets_a_gradient_towards_the_corner():
+    """Eq. 5's clip alone would give zero gradient where a corner's output is <= 0."""
+    model = CCDN()
+    z = torch.full((1, 1, 4, 4), -0.3, requires_grad=True)
+    target = torch.zeros(1, 1, 4, 4)
+    target[0, 0, 1, 1] = 1
+    ccdn_loss(z, target, model).backward()
+    assert z.grad[0, 0, 1, 1] < 0  # descending the loss raises the corner's output
+    assert z.grad[0, 0, 2, 2] == 0  # negatives below zero are already right
+
+
+def test_staircase_decay_follows_eq6():
+    assert staircase_lr(0, 0.01, 0.5, 100) == 0.01
+    assert staircase_lr(199, 0.01, 0.5, 100) == pytest.approx(0.005)
+    assert staircase_lr(200, 0.01, 0.5, 100) == pytest.approx(0.0025)
+
+
+def test_render_is_deterministic_by_seed():
+    a = render_scene(np.random.default_rng(7), SceneConfig(width=160, height=120))
+    b = render_scene(np.random.default_rng(7), SceneConfig(width=160, height=120))
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.corners, b.corners)
+
+
+@pytest.mark.parametrize("lens", ["none", "radial", "fisheye"])
+def test_rendered_labels_sit_on_the_saddle_points(lens):
+    """OpenCV's cornerSubPix, started 0.7 px off, must converge back onto our exact labels."""
+    import cv2
+
+    cfg = SceneConfig(p_no_board=0, p_two_boards=0, p_occluder=0, p_blur=0, p_motion=0, p_defocus=0, noise_sigma=(0, 0),
+                      p_jpeg=0, p_glare=0, p_shadow=0, p_dark=0, p_low_contrast=0, square_px=(25, 35), max_tilt_deg=30,
+                      p_radial=1.0 if lens == "radial" else 0.0, p_fisheye=1.0 if lens == "fisheye" else 0.0)
+    scene = render_scene(np.random.default_rng(3), cfg)
+    assert len(scene.corners) >= 9
+    start = (scene.corners + 0.7).reshape(-1, 1, 2).astype(np.float32)
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+    refined = cv2.cornerSubPix(scene.image, start, (5, 5), (-1, -1), crit).reshape(-1, 2)
+    err = np.linalg.norm(refined - scene.corners, axis=1)
+    # cornerSubPix assumes straight edges in its window; fisheye bends them, so it is less exact there
+    assert np.median(err) < (0.1 if lens == "fisheye" else 0.05)
+
+
+def test_onnx_export_matches_pytorch():
+    """Tolerance 1e-4 absolute on scores of order 1 (float32 convolution order differs)."""
+    model = CCDN()
+    model.reset_parameters_paper()
+    model.eval()
+    proto = to_onnx(model, "test", "0", {"recipe": "none"})
+    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    x = np.random.default_rng(0).random((2, 1, 45, 61), dtype=np.float32)
+    ours = session.run(None, {"image": x})[0]
+    with torch.no_grad():
+        ref = model(torch.from_numpy(x)).numpy()
+    assert np.abs(ours - ref).max() < 1e-4
+    meta = {p.key: p.value for p in proto.metadata_props}
+    assert meta["parameters"] == "16301" and meta["preprocessing"] == "gray_u8_div255"
+    assert [n.op_type for n in proto.graph.node].count("Pad") == 0
+
+
+def test_shipped_model_matches_pytorch_with_its_own_weights(examples):
+    """The committed paper.onnx, loaded back into the PyTorch module, gives the same scores."""
+    import cv2
+    import onnx
+    from onnx import numpy_helper
+
+    from ccdn.models import model_path
+
+    proto = onnx.load(str(model_path("paper")))
+    weights = {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in proto.graph.initializer}
+    model = CCDN().eval()
+    model.load_state_dict(weights)
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)[:200, :240]
+    x = (gray.astype(np.float32) / 255)[None, None]
+    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    with torch.no_grad():
+        ref = model(torch.from_numpy(x)).numpy()
+    assert np.abs(session.run(None, {"image": x})[0] - ref).max() < 1e-4
