@@ -140,17 +140,19 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=None, help="bundled model name or .onnx path (default: paper)")
     parser.add_argument("--refinement", default="saddle")
-    parser.add_argument("--no-cluster", action="store_true", help="skip the paper's k-means outlier removal")
+    parser.add_argument("--filter", default="grid", help="false-corner filter: grid (default), kmeans (paper), none")
+    parser.add_argument("--no-coarse", action="store_true", help="always run the network at full resolution")
     parser.add_argument("--synthetic", type=int, default=60, help="number of renders (plus a third as many boardless)")
     parser.add_argument("--seed", type=int, default=5_000_000)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "accuracy.json")
     args = parser.parse_args(argv)
-    detector = ccdn.Detector(args.model, args.threads, refinement=args.refinement, cluster=not args.no_cluster)
+    detector = ccdn.Detector(args.model, args.threads, refinement=args.refinement, filter=args.filter,
+                             coarse_to_fine=not args.no_coarse)
     t0 = time.time()
     result = evaluate(detector, args.synthetic, args.seed)
     result["config"] = {"model": detector.model.name, "version": detector.model.version, "refinement": args.refinement,
-                        "cluster": not args.no_cluster, "match_radius_px": MATCH_RADIUS, "seed": args.seed,
+                        "filter": args.filter, "coarse_to_fine": not args.no_coarse, "match_radius_px": MATCH_RADIUS, "seed": args.seed,
                         "machine": platform.processor() or platform.machine(), "seconds": round(time.time() - t0, 1)}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1))

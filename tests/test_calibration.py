@@ -205,3 +205,20 @@ def test_calibrate_command_fails_without_enough_boards(tmp_path):
                  str(tmp_path / "out"), "--quiet"]) == 1
     with pytest.raises(SystemExit):
         main(["calibrate", str(tmp_path / "in"), "--board", "9by6", "--square", "1", "--out", str(tmp_path)])
+
+
+def test_calibrate_command_uses_cut_off_boards_only_with_partial(tmp_path):
+    synth = pytest.importorskip("ccdn_training.synth")
+    from ccdn.cli import main
+
+    lens = synth.Lens(560.0, 322.0, 236.0)
+    rng = np.random.default_rng(3)
+    (tmp_path / "in").mkdir()
+    for i in range(4):  # the board's last two columns are beyond the right edge of the image
+        rvec = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), rng.uniform(-0.2, 0.2)])
+        image = render_view(lens, rvec, np.array([5.0, -3.5, 20.0]), (640, 480))
+        cv2.imwrite(str(tmp_path / "in" / f"cut{i}.png"), image)
+    args = ["calibrate", str(tmp_path / "in"), "--board", "9x6", "--square", "1", "--threads", "2", "--quiet"]
+    assert main([*args, "--out", str(tmp_path / "strict")]) == 1
+    assert main([*args, "--out", str(tmp_path / "partial"), "--partial"]) == 0
+    assert len(json.loads((tmp_path / "partial" / "calibration.json").read_text())["used"]) >= 3

@@ -86,3 +86,36 @@ def test_finds_most_corners_of_a_real_photo(detector, real_dev):
     result = detector.detect(case["path"])
     d = nearest_distances(result.xy, case["corners"])
     assert (d < 5).mean() >= 0.9
+
+
+def test_grid_filter_returns_boards_with_their_sizes(detector, examples):
+    result = detector.detect(examples["two-boards"]["path"])
+    sizes = sorted(sorted((b.cols, b.rows)) for b in result.boards)
+    assert sizes == sorted(sorted(b) for b in examples["two-boards"]["boards"])
+    indexed = np.concatenate([b.corner_index for b in result.boards])
+    assert sorted(indexed.tolist()) == list(range(len(result)))  # every corner is on a board, once
+
+
+def test_paper_postprocessing_with_kmeans_is_still_available(examples):
+    paper = ccdn.Detector(threads=2, filter="kmeans", refinement="none")
+    result = paper.detect(examples["board"]["path"])
+    d = nearest_distances(result.xy, examples["board"]["corners"])
+    assert (d < 5).mean() >= 0.95
+    assert np.array_equal(result.xy, np.round(result.xy))  # integer score peaks, as in the paper
+
+
+def test_coarse_to_fine_finds_the_same_corners_as_full_resolution(examples):
+    import cv2
+
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    big = cv2.resize(gray, (1600, 1200), interpolation=cv2.INTER_CUBIC)
+    coarse = ccdn.Detector(threads=2).detect(big)
+    full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(big)
+    assert len(coarse) == len(full) == 54
+    d = np.linalg.norm(coarse.xy[:, None] - full.xy[None], axis=2).min(1)
+    assert np.max(d) < 0.05
+
+
+def test_unknown_filter_is_refused():
+    with pytest.raises(ValueError, match="unknown filter"):
+        ccdn.Detector(filter="magic")

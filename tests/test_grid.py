@@ -112,6 +112,18 @@ def test_missing_corners_leave_holes_not_broken_boards(hole):
     assert index_map(board, scene.grid[keep][board.corner_index]) is not None
 
 
+def test_points_on_the_board_outline_do_not_extend_the_board():
+    """Detectors also fire where the outer squares meet the margin; those are not inner corners."""
+    for scene in whole_boards(3, board_sizes=((7, 5),)):
+        at = {(int(r), int(c)): p for (r, c), p in zip(scene.grid, scene.corners)}
+        ring = [2 * at[(0, c)] - at[(1, c)] for c in range(7)] + [2 * at[(4, c)] - at[(3, c)] for c in range(7)]
+        ring += [2 * at[(r, 0)] - at[(r, 1)] for r in range(5)] + [2 * at[(r, 6)] - at[(r, 5)] for r in range(5)]
+        xy = np.concatenate([scene.corners, ring]).astype(np.float32)
+        (board,) = find_boards(scene.image, xy, np.ones(len(xy)))
+        assert (board.corner_index < len(scene.corners)).all()
+        assert sorted((board.cols, board.rows)) == [5, 7]
+
+
 def test_points_off_any_checkerboard_form_no_board():
     scene = render(3, p_no_board=1.0)
     xy = np.random.default_rng(0).random((300, 2)) * [640, 480]
@@ -189,7 +201,8 @@ def test_real_photos_labelled_corners_link_into_the_labelled_board():
         xy = np.asarray(label["corners"], np.float32).reshape(-1, 2)
         free = find_boards(gray, xy, np.ones(len(xy)))
         boards = find_boards(gray, xy, np.ones(len(xy)), board_size=(cols, rows))
-        if len(boards) == 1 and len(boards[0]) == cols * rows and sorted((free[0].cols, free[0].rows)) == sorted((cols, rows)):
+        free_size = sorted((free[0].cols, free[0].rows)) if free else None
+        if len(boards) == 1 and len(boards[0]) == cols * rows and free_size == sorted((cols, rows)):
             recovered += 1
             labelled = np.column_stack(np.divmod(boards[0].corner_index, cols))  # labels are row-major
             if (cols + rows) % 2:
@@ -198,3 +211,14 @@ def test_real_photos_labelled_corners_link_into_the_labelled_board():
     assert recovered >= len(images) - 1
     # the labels come from cv2.findChessboardCornersSB, whose (0, 0) quad is light as well
     assert same_origin >= 0.9 * asymmetric
+
+
+def test_detector_returns_the_board_with_indices_into_its_corners(detector, examples):
+    ex = examples["board"]
+    result = detector.detect(ex["path"], boards=True, board_size=(9, 6))
+    (board,) = result.boards
+    assert (board.cols, board.rows) == (9, 6)
+    np.testing.assert_array_equal(board.xy, result.xy[board.corner_index])
+    near = np.linalg.norm(board.xy[:, None] - ex["corners"][None], axis=2).min(1) < 2.0
+    assert near.all() and len(board) >= 0.9 * 54
+    assert json.loads(result.to_json())["boards"][0]["cols"] == 9

@@ -111,7 +111,7 @@ def _solve(model: str, views: Sequence[View], image_size: tuple[int, int], squar
     img = [np.asarray(v.xy, np.float64) for v in views]
     try:
         if model == "fisheye":
-            # OpenCV's own start (no guess) often fails (OpenCV 5: "norm_u1 > 0"); the same start given as a guess works
+            # OpenCV's own start often fails (OpenCV 5: "norm_u1 > 0"); the same start given as a guess works
             w, h = image_size
             f0 = max(w, h) / np.pi
             k0 = np.array([[f0, 0, w / 2 - 0.5], [0, f0, h / 2 - 0.5], [0, 0, 1]])
@@ -124,7 +124,8 @@ def _solve(model: str, views: Sequence[View], image_size: tuple[int, int], squar
                 [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img], image_size, None, None,
                 criteria=_CRITERIA)
     except cv2.error as exc:
-        raise CalibrationError(f"OpenCV could not solve the {model} model: {str(exc).strip().splitlines()[-1]}") from exc
+        reason = str(exc).strip().splitlines()[-1]
+        raise CalibrationError(f"OpenCV could not solve the {model} model: {reason}") from exc
     errors = np.array([np.sqrt(np.mean(np.sum((_project(model, o, r, t, k, d) - i) ** 2, axis=1)))
                        for o, i, r, t in zip(obj, img, rvecs, tvecs)])
     return k, d.ravel(), rvecs, tvecs, errors
@@ -135,15 +136,19 @@ def calibrate(views: Sequence[View], image_size: tuple[int, int], board: tuple[i
     """Solve the camera from board views, dropping outlier views (see the module docstring).
 
     image_size: (width, height) px; board: (cols, rows) inner corners; square: side in your unit
-    (poses come out in it). Raises CalibrationError when fewer than 3 views of >= 6 corners are usable
-    or OpenCV fails.
+    (poses come out in it). Views with fewer than 6 corners or indices outside the board are not
+    used. Raises CalibrationError when fewer than 3 views are usable or OpenCV fails.
     """
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    names = [v.name for v in views]
+    if len(set(names)) != len(names):
+        raise ValueError("view names must be unique")
     cols, rows = board
     usable = [v for v in views if len(v.xy) >= MIN_POINTS and np.all((v.grid >= 0) & (v.grid < [rows, cols]))]
     if len(usable) < MIN_VIEWS:
-        raise CalibrationError(f"{len(usable)} usable views of a {cols}x{rows} board; at least {MIN_VIEWS} are needed")
+        raise CalibrationError(f"{len(usable)} usable views of a {cols}x{rows} board; "
+                               f"at least {MIN_VIEWS} are needed")
     rejected: dict[str, float] = {}
     for _ in range(max_rounds):
         k, d, rvecs, tvecs, errors = _solve(model, usable, image_size, square)
@@ -152,7 +157,7 @@ def calibrate(views: Sequence[View], image_size: tuple[int, int], board: tuple[i
         if not worst:
             break
         rejected.update({usable[i].name: float(errors[i]) for i in worst})
-        usable = [v for i, v in enumerate(usable) if i not in set(worst)]
+        usable = [v for i, v in enumerate(usable) if i not in worst]
     else:
         k, d, rvecs, tvecs, errors = _solve(model, usable, image_size, square)
     counts = np.array([len(v.xy) for v in usable])

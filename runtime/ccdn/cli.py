@@ -121,6 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--model", default=None, help="bundled detector model name or .onnx path (default: paper)")
     c.add_argument("--threads", type=positive_int, default=None, metavar="N", help="inference threads")
     c.add_argument("--out", type=Path, required=True, help="output folder")
+    c.add_argument("--partial", action="store_true",
+                   help="also use boards with whole rows or columns undetected (their offset on the board is "
+                        "unknown: harmless to the calibration, but corners.vnl numbers them from 0)")
     c.add_argument("--quiet", action="store_true", help="no progress bar")
     c.set_defaults(func=run_calibrate)
     return parser
@@ -141,6 +144,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from .batch import collect_inputs
     from .calibration import CalibrationError, View, calibrate, report, write_outputs
     from .detector import Detector
+    from .grid import find_boards
 
     try:
         detector = Detector(args.model, args.threads)
@@ -152,19 +156,22 @@ def run_calibrate(args: argparse.Namespace) -> int:
     views, missing, sizes, paths = [], [], set(), {}
     for item in tqdm(items, unit="img", disable=args.quiet or not sys.stderr.isatty(), file=sys.stderr):
         try:
-            result = detector.detect(item.path, boards=True, board_size=args.board)
+            gray = detector.load(item.path)
+            result = detector.detect(gray)
         except (OSError, ValueError) as exc:  # ImageError is a ValueError
             reasons.append(str(exc))
             continue
+        boards = find_boards(gray, result.xy, result.score, args.board, allow_partial=args.partial)
         sizes.add(result.image_size)
         paths[item.name] = item.path
-        if result.boards:
-            views.append(View.from_board(item.name, result.boards[0]))
+        if boards:
+            views.append(View.from_board(item.name, boards[0]))
         else:
             missing.append(item.name)
     for reason in reasons:
         print(f"ccdn: skipped: {reason}", file=sys.stderr)
-    print(f"ccdn: a {args.board[0]}x{args.board[1]} board found in {len(views)} of {len(items)} images", file=sys.stderr)
+    cols, rows = args.board
+    print(f"ccdn: a {cols}x{rows} board found in {len(views)} of {len(items)} images", file=sys.stderr)
     if len(sizes) > 1:
         print(f"ccdn: the images differ in size ({', '.join(f'{w}x{h}' for w, h in sorted(sizes))})", file=sys.stderr)
         return 1

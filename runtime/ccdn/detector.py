@@ -1,13 +1,21 @@
-"""The Detector: image -> network -> peaks -> refinement, built once and called many times."""
+"""The Detector: image -> network -> peaks -> outlier filter -> refinement -> boards, built once.
+
+Large frames go coarse-to-fine: the network first runs on the frame halved (a quarter of the
+pixels); when that finds a board whose squares are big enough to be seen at half size, its corners
+are refined on the full-resolution image and the full-size pass is skipped; otherwise (small
+squares, no board) the full-resolution pass runs as usual.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 
+import cv2
 import numpy as np
 
-from .grid import find_boards
+from .grid import Board, find_boards
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .peaks import find_peaks, kmeans_outliers, suppress
 from .refine import refine
@@ -15,6 +23,9 @@ from .result import Detection
 from .session import ScoreSession
 
 ImageInput = str | os.PathLike | np.ndarray
+FILTERS = ("grid", "kmeans", "none")
+COARSE_MIN_SIDE = 1200  # frames whose shorter side is at least this try the half-size pass first
+COARSE_MIN_SQUARE = 12.0  # px at half size: smaller squares go to the full-resolution pass
 
 
 class Detector:
@@ -24,18 +35,24 @@ class Detector:
     threads: intra-op threads (default: available CPUs, capped at 4). spinning: False keeps idle
     threads from busy-waiting, for apps that share the CPU.
     relative, floor: keep score peaks >= max(relative * max score, floor) (paper: relative 0.5).
-    cluster: apply the paper's k-means++ outlier removal. refinement: "saddle", "cornersubpix", "none".
+    filter: how false corners are removed: "grid" keeps corners that form a checkerboard (ccdn.grid,
+    the default), "kmeans" is the paper's k-means++ clustering, "none" keeps every peak.
+    refinement: "saddle" (default), "cornersubpix" or "none" (integer peaks, as in the paper).
+    coarse_to_fine: try a half-size pass first on large frames (see the module docstring).
     detect() is thread-safe: one Detector may serve several threads.
     """
 
     def __init__(self, model: str | os.PathLike | None = None, threads: int | None = None, *, spinning: bool = True,
-                 relative: float = 0.5, floor: float = 0.3, cluster: bool = True, refinement: str = "saddle",
-                 max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
+                 relative: float = 0.5, floor: float = 0.3, filter: str = "grid", refinement: str = "saddle",
+                 coarse_to_fine: bool = True, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
+        if filter not in FILTERS:
+            raise ValueError(f"unknown filter {filter!r}; choose from {FILTERS}")
         self._session = ScoreSession(model, threads, spinning)
         self.model = self._session.info
         self.threads = self._session.threads
-        self.relative, self.floor, self.cluster = relative, floor, cluster
+        self.relative, self.floor, self.filter = relative, floor, filter
         self.refinement = refinement
+        self.coarse_to_fine = coarse_to_fine
         self.max_pixels = max_pixels
 
     def load(self, image: ImageInput) -> np.ndarray:
@@ -47,31 +64,88 @@ class Detector:
     def detect(self, image: ImageInput, *, boards: bool = False, board_size: tuple[int, int] | None = None) -> Detection:
         """Inner corners of the checkerboard(s) in `image` (path, or HxW / HxWx3 BGR array).
 
-        boards=True also links the corners into boards (ccdn.grid.find_boards; board_size=(cols, rows)
-        keeps only boards of that size); otherwise Detection.boards is empty and costs nothing.
+        Detection.boards holds the boards the corners form (ccdn.grid.find_boards) whenever they
+        were found: always with the default grid filter, and with boards=True under the others.
+        board_size=(cols, rows) keeps only boards, and their corners, of that size.
+        Coordinates: (x, y), (0, 0) is the centre of the top-left pixel.
         """
-        t0 = time.perf_counter()
+        clock = _Clock()
         gray = self.load(image)
-        t1 = time.perf_counter()
-        score = self._session.scores(gray)
-        t2 = time.perf_counter()
-        xy, values = find_peaks(score, self.relative, self.floor)
-        if self.cluster and len(xy):
-            keep = kmeans_outliers(xy)
-            xy, values = xy[keep], values[keep]
-        refined, ok = refine(gray, xy, self.refinement)
-        refined, values = refined[ok], values[ok]
-        distinct = suppress(refined, radius=1.0)  # refinement can move two peaks onto one corner
-        refined, values = refined[distinct], values[distinct]
-        found = find_boards(gray, refined, values, board_size) if boards else ()
-        t3 = time.perf_counter()
-        timings = {"load": (t1 - t0) * 1e3, "network": (t2 - t1) * 1e3, "postprocess": (t3 - t2) * 1e3}
-        return Detection(refined, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]),
-                         f"{self.model.name} {self.model.version}", found, timings)
+        clock.lap("load")
+        xy = values = found = None
+        if self.coarse_to_fine and min(gray.shape) >= COARSE_MIN_SIDE:
+            xy, values, found = self._coarse(gray, boards, board_size, clock)
+        if xy is None:
+            xy, values, found = self._corners(gray, gray, 1, boards, board_size, clock)
+        return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]),
+                         f"{self.model.name} {self.model.version}", found, clock.laps)
 
     def scores(self, image: ImageInput) -> np.ndarray:
         """The network's raw (H, W) float32 score map, for inspection."""
         return self._session.scores(self.load(image))
+
+    def _coarse(self, gray: np.ndarray, boards: bool, board_size, clock: _Clock):
+        """The half-size pass; (None, None, None) when its boards' squares are too small to trust."""
+        small = cv2.resize(gray, (gray.shape[1] // 2, gray.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        xy, values, found = self._corners(gray, small, 2, boards, board_size, clock)
+        if len(xy) < 9 or _median_spacing(xy) / 2 < COARSE_MIN_SQUARE:
+            return None, None, None
+        return xy, values, found
+
+    def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
+        """Network on `frame` (gray shrunk by `scale`), then peaks, filter and refinement on gray."""
+        score = self._session.scores(frame)
+        clock.lap("network")
+        xy, values = find_peaks(score, self.relative, self.floor)
+        if self.filter == "kmeans" and len(xy):
+            keep = kmeans_outliers(xy)
+            xy, values = xy[keep], values[keep]
+        clock.lap("peaks")
+        start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
+        refined, ok = refine(gray, start, self.refinement, max_shift=2.0 * scale)
+        refined, values = refined[ok], values[ok]
+        distinct = suppress(refined, radius=1.0)  # refinement can move two peaks onto one corner
+        refined, values = refined[distinct], values[distinct]
+        clock.lap("refine")
+        found: tuple[Board, ...] = ()
+        if self.filter == "grid" or boards or board_size is not None:
+            found = find_boards(gray, refined, values, board_size)
+            if self.filter == "grid" or board_size is not None:
+                refined, values, found = _keep_board_corners(refined, values, found)
+            clock.lap("boards")
+        return refined, values, found
+
+
+def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):
+    """Only the corners that belong to a board, in their original (score) order, boards re-indexed."""
+    member = np.zeros(len(xy), bool)
+    for board in boards:
+        member[board.corner_index] = True
+    new_index = np.cumsum(member) - 1
+    boards = tuple(dataclasses.replace(b, corner_index=new_index[b.corner_index]) for b in boards)
+    return xy[member], values[member], boards
+
+
+def _median_spacing(xy: np.ndarray) -> float:
+    """Median distance from each of the (first 512) corners to its nearest neighbour: about one
+    square side on a board."""
+    xy = xy[:512]
+    d = np.linalg.norm(xy[:, None] - xy[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return float(np.median(d.min(1)))
+
+
+class _Clock:
+    """Per-stage wall times in ms (stages met twice, e.g. two network passes, add up)."""
+
+    def __init__(self) -> None:
+        self.laps: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.laps[stage] = self.laps.get(stage, 0.0) + (now - self._last) * 1e3
+        self._last = now
 
 
 _default: Detector | None = None

@@ -1,21 +1,28 @@
 """Grid recovery: unordered corners -> boards with (row, col) indices, without knowing the board size.
 
-How: seeds are tried in order of score. A seed is a corner p with two neighbours p + u, p + v whose
-sum p + u + v is also a corner (one square of the lattice, smallest basis first) and whose four
-corners pass the image test below. The board then grows position by position: each empty neighbour
-of the grid is predicted from the grid (along a row or column from the previous two or three
-corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms with diagonal neighbours; the median of the
-predictions), and the nearest free corner within 0.3 local square sides is taken if it passes the
-image test. When nothing more can be added, growth may jump over one missing position along a row
-or column (a hole, not the end of the board). A grid of at least 3 x 3 positions and 8 corners is a
-board; its corners are removed and the search repeats for further boards. Corners in no board are
-dropped. Local predictions make this tolerant of perspective and strong radial/fisheye distortion.
+How: seeds are tried in order of score, first the corners whose surroundings look like a checker
+corner (on a small ring around it the grey level alternates twice: the ring's second angular
+harmonic beats its first, as it does not at an edge or a T-junction), then at most 200 others (a
+cheap filter that keeps clutter from costing a seed attempt per point). A seed is a corner p with
+two neighbours p + u, p + v whose sum p + u + v is also a corner (one square of the lattice) and
+whose four corners pass the image test below, with uniform grey inside each sampled quad (a wrong
+lattice samples edges); of the passing bases the shortest is taken. The board then grows position
+by position: each empty neighbour of the grid is predicted from the grid (along a row or column
+from the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms
+with diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of
+the shorter local lattice step is taken if it passes the image test. When nothing more can be
+added, growth may jump over one missing position along a row or column (a hole, not the end of the
+board). Corners left with fewer than two row/column neighbours are then dropped (lone points on the
+outline). A grid of at least 3 x 3 positions and 8 corners is a board; its corners are removed and
+the search repeats for further boards. Corners in no board are dropped. Local predictions make this
+tolerant of perspective and strong radial/fisheye distortion.
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
-level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps) and every
-pair of edge-adjacent quads must differ, with the board's sign (fixed at its seed, so that quads
-with even row + col are all dark or all light) and by at least a fifth of the seed's contrast. This
-rejects false corners and points on the board's outline (where two outside quads are alike).
+level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
+to a centre that is off the image) and all four edge-adjacent quad pairs must differ with the
+board's sign (fixed at its seed: quads with even row + col are all dark or all light), their median
+by at least a fifth of the seed's contrast and the weakest by 0.15 of the strongest. This rejects
+false corners and points on the board's outline (where two outside quads are alike).
 
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
@@ -37,18 +44,19 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
+
+from .checker import MIN_CONTRAST, Sampler, quad_differences, x_like
 
 MIN_CORNERS = 8
 MIN_EXTENT = 3
-SEED_NEIGHBOURS = 12
+SEED_NEIGHBOURS = 12  # a seed's square is sought among these nearest corners ...
+SEED_REACH = 24  # ... and its fourth corner among these
+MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 TOLERANCE = 0.3  # of the shorter local lattice step
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
-MIN_CONTRAST = 2.0  # grey levels between neighbouring quads
 RELATIVE_CONTRAST = 0.2  # of the seed's median contrast
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
@@ -79,62 +87,10 @@ class Board:
                 "grid": self.grid.tolist()}
 
 
-class _Sampler:
-    """Mean grey level of small boxes, via an integral image (NaN for boxes off the image)."""
-
-    def __init__(self, gray: np.ndarray) -> None:
-        self.integral = cv2.integral(gray, sdepth=cv2.CV_64F)
-        self.height, self.width = gray.shape
-
-    def contains(self, points: np.ndarray) -> np.ndarray:
-        x, y = np.rint(points[:, 0]), np.rint(points[:, 1])
-        return (x >= 0) & (y >= 0) & (x < self.width) & (y < self.height)
-
-    def mean(self, points: np.ndarray, radius: np.ndarray) -> np.ndarray:
-        """Mean over the (2 radius + 1)^2 box around each point (K, 2); radius (K,) int."""
-        xi = np.rint(points[:, 0]).astype(np.int64)
-        yi = np.rint(points[:, 1]).astype(np.int64)
-        w1, h1 = self.width - 1, self.height - 1
-        x0, x1 = np.minimum(np.maximum(xi - radius, 0), w1), np.minimum(np.maximum(xi + radius, 0), w1) + 1
-        y0, y1 = np.minimum(np.maximum(yi - radius, 0), h1), np.minimum(np.maximum(yi + radius, 0), h1) + 1
-        s = self.integral
-        total = s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]
-        return np.where(self.contains(points), total / ((x1 - x0) * (y1 - y0)), np.nan)
-
-
-def _quad_differences(sampler: _Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Grey-level contrast and uniformity of the 4 quads around corners p (K, 2), lattice steps u, v.
-
-    Returns (diffs, spread): diffs (K, 4) is own-parity minus other-parity quad over the 4
-    edge-adjacent pairs (the quad at +u/2 +v/2 shares the corner's row + col parity), positive when
-    the corner's own-parity quads are light; spread (K,) is the largest range of 5 samples within
-    one quad (centre and centre +- (u +- v)/8), small when the samples sit inside squares, large
-    when a wrong lattice puts them on edges. A quad centre off the image is sampled halfway to it.
-    """
-    p = np.atleast_2d(p)
-    u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
-    cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
-    longest = np.maximum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
-    radius = np.floor(0.12 * cross / np.maximum(longest, 1e-9)).astype(np.int64)  # well inside a square
-    offsets = np.stack([np.zeros_like(u), (u + v) / 8, -(u + v) / 8, (u - v) / 8, (v - u) / 8])  # (5, K, 2)
-    signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)[:, None, :, None]  # (4 quads, 1, 2, 1)
-    step = signs[:, :, 0] * u[None] + signs[:, :, 1] * v[None]  # (4, K, 2)
-    centre = p[None] + step / 2
-    off = ~sampler.contains(centre.reshape(-1, 2)).reshape(4, -1)
-    centre[off] = (p[None] + step / 4)[off]
-    points = (centre[:, None] + offsets[None]).reshape(-1, 2)  # (4 quads, 5 samples, K) flattened
-    samples = sampler.mean(points, np.tile(radius, 20)).reshape(4, 5, -1)
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN quads (off the image) stay NaN
-        spread = np.nanmax(np.nanmax(samples, 1) - np.nanmin(samples, 1), 0)
-    pp, pm, mp, mm = np.sort(samples, axis=1)[:, 2]  # median of the 5
-    return np.stack([pp - pm, pp - mp, mm - pm, mm - mp], 1), spread
-
-
 class _Grower:
     """Grows one board from a seed square over the free corners."""
 
-    def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: _Sampler) -> None:
+    def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler) -> None:
         self.xy, self.free, self.sampler = xy, free.copy(), sampler
         self.at: dict[tuple[int, int], int] = {}
         self.stale: set[tuple[int, int]] = set()  # failed, and nothing near them changed since
@@ -142,8 +98,10 @@ class _Grower:
         self.threshold = MIN_CONTRAST
 
     def seed(self, s: int, neighbours: np.ndarray) -> bool:
-        """Find a verified square at corner s; on success the grid holds its 4 corners."""
-        nb = neighbours[self.free[neighbours]]
+        """Find a verified square at corner s (neighbours: its nearest corners, nearest first); on
+        success the grid holds the square's 4 corners."""
+        candidates = neighbours[self.free[neighbours]]
+        nb = candidates[:SEED_NEIGHBOURS]
         if len(nb) < 3:
             return False
         p = self.xy[s]
@@ -158,7 +116,6 @@ class _Grower:
         flip = cross < 0  # order each pair so that u x v > 0: +col, +row like image +x, +y
         a, b = np.where(flip, nb[j], nb[i])[ok], np.where(flip, nb[i], nb[j])[ok]
         u, v = self.xy[a] - p, self.xy[b] - p
-        candidates = np.nonzero(self.free)[0]
         d = np.linalg.norm(self.xy[candidates][None] - (p + u + v)[:, None], axis=2)
         nearest = d.argmin(1)
         tol = TOLERANCE * np.minimum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
@@ -168,7 +125,7 @@ class _Grower:
         if len(good) == 0:
             return False
         corners = np.stack([np.full(len(good), s), a[good], b[good], candidates[nearest[good]]], 1)  # (G, 4)
-        diffs, spread = _quad_differences(self.sampler, self.xy[corners.ravel()], np.repeat(u[good], 4, 0),
+        diffs, spread = quad_differences(self.sampler, self.xy[corners.ravel()], np.repeat(u[good], 4, 0),
                                           np.repeat(v[good], 4, 0))
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs.reshape(-1, 4, 4) * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(good), 16)
@@ -214,7 +171,7 @@ class _Grower:
         if u is None or v is None:
             return False
         parity = 1.0 if (rc[0] + rc[1]) % 2 == 0 else -1.0
-        diffs = _quad_differences(self.sampler, point, u, v)[0][0] * parity * self.sign
+        diffs = quad_differences(self.sampler, point, u, v)[0][0] * parity * self.sign
         diffs = diffs[np.isfinite(diffs)]
         return bool(len(diffs) >= 2 and np.median(diffs) > self.threshold
                     and diffs.min() > max(MIN_CONTRAST, PAIR_RATIO * diffs.max()))
@@ -329,6 +286,20 @@ def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int
     return best
 
 
+def _nearest(xy: np.ndarray, k: int) -> np.ndarray:
+    """(N, min(k, N - 1)) indices of each point's nearest other points, nearest first (in row blocks,
+    so that memory stays O(N) per block)."""
+    k = min(k, len(xy) - 1)
+    out = np.empty((len(xy), k), np.int64)
+    for start in range(0, len(xy), 256):
+        d = np.linalg.norm(xy[start : start + 256, None] - xy[None], axis=2)
+        d[np.arange(len(d)), np.arange(start, start + len(d))] = np.inf
+        part = np.argpartition(d, k - 1, axis=1)[:, :k]
+        order = np.argsort(np.take_along_axis(d, part, 1), axis=1, kind="stable")
+        out[start : start + len(d)] = np.take_along_axis(part, order, 1)
+    return out
+
+
 def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size: tuple[int, int] | None = None,
                 *, allow_partial: bool = False) -> tuple[Board, ...]:
     """Link corners into checkerboards: the boards found, largest first (ties: top, then left).
@@ -349,13 +320,14 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     n = len(xy)
     if n < MIN_CORNERS:
         return ()
-    sampler = _Sampler(gray)
-    dist = np.linalg.norm(xy[:, None] - xy[None], axis=2)
-    np.fill_diagonal(dist, np.inf)
-    neighbours = np.argsort(dist, axis=1, kind="stable")[:, :SEED_NEIGHBOURS]
+    sampler = Sampler(gray)
+    neighbours = _nearest(xy, SEED_REACH)
+    order = np.lexsort((xy[:, 0], xy[:, 1], -score))
+    corner_like = x_like(gray, xy, neighbours[:, 0])[order]
+    seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
     free = np.ones(n, bool)
     found = []
-    for s in np.lexsort((xy[:, 0], xy[:, 1], -score)):
+    for s in seeds:
         if not free[s]:
             continue
         grower = _Grower(xy, free, sampler)

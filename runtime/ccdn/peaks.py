@@ -3,9 +3,9 @@
 1. Threshold: keep pixels scoring at least `relative` x the map's maximum (the paper's half of the
    maximum) and at least the absolute `floor`, so an image without a board returns nothing.
 2. Non-maximum suppression: the paper builds 4x4 boxes around candidates and suppresses at IoU 0.5,
-   which as written only removes direct neighbours. We suppress greedily by score within a radius
-   (default 2 px, the reach of a 4x4 box) so that one corner gives one detection; candidates are
-   first reduced to local maxima of a 3x3 window, which is exact and cheap.
+   which as written only removes direct neighbours. We keep a pixel only if it is the maximum of
+   its 5x5 box (radius 2 px, the reach of a 4x4 box), one dilation for the whole map, then settle
+   ties on plateaus greedily in score and raster order, so that one corner gives one detection.
 3. Clustering (optional, the paper's): k-means++ with k = 10 on the positions; clusters of <= 2
    points are dropped. With fewer than 3k candidates k shrinks to n // 3 (at least 1), so a small
    board is not shredded into clusters of one or two.
@@ -17,8 +17,10 @@ import cv2
 import numpy as np
 
 
-def find_peaks(score: np.ndarray, relative: float = 0.5, floor: float = 0.3, radius: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
-    """Thresholded, suppressed local maxima of `score` (H, W) float32.
+def find_peaks(score: np.ndarray, relative: float = 0.5, floor: float = 0.3, radius: float = 2.0,
+               max_peaks: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+    """Thresholded, suppressed local maxima of `score` (H, W) float32; at most `max_peaks`, the
+    strongest, which bounds the cost of later stages on pathological (e.g. pure noise) input.
 
     Returns xy (N, 2) int32 as (x, y) pixel indices and their scores (N,) float32, highest first.
     """
@@ -26,27 +28,48 @@ def find_peaks(score: np.ndarray, relative: float = 0.5, floor: float = 0.3, rad
     threshold = max(relative * top, floor)
     if top < threshold or top <= 0:
         return np.zeros((0, 2), np.int32), np.zeros(0, np.float32)
-    local_max = score >= cv2.dilate(score, np.ones((3, 3), np.uint8))
+    reach = int(radius)
+    window = np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)
+    local_max = score >= cv2.dilate(score, window)  # the maximum of its own (2r+1)^2 box
     ys, xs = np.nonzero(local_max & (score >= threshold))
     values = score[ys, xs]
-    order = np.lexsort((xs, ys, -values))  # by score, ties in raster order: deterministic
+    order = np.lexsort((xs, ys, -values))[:max_peaks]  # by score, ties in raster order: deterministic
     xy = np.stack([xs[order], ys[order]], 1).astype(np.int32)
     values = values[order]
-    keep = suppress(xy, radius)
+    keep = suppress(xy, radius)  # only equal scores on a plateau are left to resolve
     return xy[keep], values[keep].astype(np.float32)
 
 
 def suppress(xy: np.ndarray, radius: float) -> np.ndarray:
-    """Greedy NMS on points sorted by descending score: True for points no stronger point is near."""
+    """Greedy NMS on points sorted by descending score: True for points no kept stronger point is near.
+
+    Candidate pairs come from a sweep along x (searchsorted), so memory grows with the number of
+    close pairs, not with N^2.
+    """
     n = len(xy)
     if n < 2:
         return np.ones(n, bool)
-    d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
-    close = np.triu(d2 <= radius * radius, k=1)  # close[i, j]: j is within reach of stronger i
+    pts = xy.astype(np.float64)
+    by_x = np.argsort(pts[:, 0], kind="stable")
+    xs = pts[by_x, 0]
+    lo = np.searchsorted(xs, xs - radius, "left")
+    hi = np.searchsorted(xs, xs + radius, "right")
+    counts = hi - lo
+    a = np.repeat(np.arange(n), counts)
+    b = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(lo, counts)
+    i, j = by_x[a], by_x[b]
+    close = (i < j) & (((pts[i] - pts[j]) ** 2).sum(1) <= radius * radius)  # i stronger than j
+    i, j = i[close], j[close]
     keep = np.ones(n, bool)
-    for j in np.nonzero(close.any(0))[0]:  # loop only over the few points that have a stronger neighbour
-        if (close[:, j] & keep).any():
-            keep[j] = False
+    if len(j) == 0:
+        return keep
+    order = np.argsort(j, kind="stable")
+    i, j = i[order], j[order]
+    starts = np.searchsorted(j, np.arange(n))
+    ends = np.searchsorted(j, np.arange(n), "right")
+    for point in np.unique(j):  # in score order: each point's stronger neighbours are settled first
+        if keep[i[starts[point] : ends[point]]].any():
+            keep[point] = False
     return keep
 
 

@@ -79,12 +79,12 @@ def refine_cornersubpix(gray: np.ndarray, xy: np.ndarray, radius: int = 4, max_s
     return np.where(ok[:, None], refined, xy).astype(np.float32), ok
 
 
-def refine(gray: np.ndarray, xy: np.ndarray, method: str = "saddle") -> tuple[np.ndarray, np.ndarray]:
-    """Dispatch to a refinement method by name (see METHODS)."""
+def refine(gray: np.ndarray, xy: np.ndarray, method: str = "saddle", max_shift: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Dispatch to a refinement method by name (see METHODS); corners may move up to max_shift px."""
     if method == "saddle":
-        return refine_saddle_points(gray, xy)
+        return refine_saddle_points(gray, xy, max_shift=max_shift)
     if method == "cornersubpix":
-        return refine_cornersubpix(gray, xy)
+        return refine_cornersubpix(gray, xy, max_shift=max_shift)
     if method == "none":
         return xy.astype(np.float32), np.ones(len(xy), bool)
     raise ValueError(f"unknown refinement {method!r}; choose from {METHODS}")

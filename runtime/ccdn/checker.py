@@ -1,0 +1,81 @@
+"""Image evidence for checker corners: box means of the grey level, the four quads around a corner,
+and a ring test for X-junctions (used by ccdn.grid to verify corners and lattices).
+
+Pixel convention: (0, 0) is the centre of the top-left pixel; points are (x, y).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import cv2
+import numpy as np
+
+MIN_CONTRAST = 2.0  # grey levels: differences below this are noise
+
+
+class Sampler:
+    """Mean grey level of small boxes, via an integral image (NaN where the centre is off the image)."""
+
+    def __init__(self, gray: np.ndarray) -> None:
+        self.integral = cv2.integral(gray, sdepth=cv2.CV_64F)
+        self.height, self.width = gray.shape
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        x, y = np.rint(points[:, 0]), np.rint(points[:, 1])
+        return (x >= 0) & (y >= 0) & (x < self.width) & (y < self.height)
+
+    def mean(self, points: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Mean over the (2 radius + 1)^2 box around each point (K, 2); radius (K,) int."""
+        xi = np.rint(points[:, 0]).astype(np.int64)
+        yi = np.rint(points[:, 1]).astype(np.int64)
+        w1, h1 = self.width - 1, self.height - 1
+        x0, x1 = np.minimum(np.maximum(xi - radius, 0), w1), np.minimum(np.maximum(xi + radius, 0), w1) + 1
+        y0, y1 = np.minimum(np.maximum(yi - radius, 0), h1), np.minimum(np.maximum(yi + radius, 0), h1) + 1
+        s = self.integral
+        total = s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]
+        return np.where(self.contains(points), total / ((x1 - x0) * (y1 - y0)), np.nan)
+
+
+def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Grey-level contrast and uniformity of the 4 quads around corners p (K, 2), lattice steps u, v.
+
+    Returns (diffs, spread): diffs (K, 4) is own-parity minus other-parity quad (each the median of
+    5 samples: centre and centre +- (u +- v)/8) over the 4 edge-adjacent pairs (the quad at
+    +u/2 +v/2 shares the corner's row + col parity), positive when the corner's own-parity quads are
+    light; spread (K,) is the largest range of the 5 samples within one quad, small when they sit
+    inside squares, large when a wrong lattice puts them on edges. A quad centre off the image is
+    sampled halfway to it.
+    """
+    p = np.atleast_2d(p)
+    u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
+    cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+    longest = np.maximum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
+    radius = np.floor(0.12 * cross / np.maximum(longest, 1e-9)).astype(np.int64)  # well inside a square
+    offsets = np.stack([np.zeros_like(u), (u + v) / 8, -(u + v) / 8, (u - v) / 8, (v - u) / 8])  # (5, K, 2)
+    signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)[:, None, :, None]  # (4 quads, 1, 2, 1)
+    step = signs[:, :, 0] * u[None] + signs[:, :, 1] * v[None]  # (4, K, 2)
+    centre = p[None] + step / 2
+    off = ~sampler.contains(centre.reshape(-1, 2)).reshape(4, -1)
+    centre[off] = (p[None] + step / 4)[off]
+    points = (centre[:, None] + offsets[None]).reshape(-1, 2)  # (4 quads, 5 samples, K) flattened
+    samples = sampler.mean(points, np.tile(radius, 20)).reshape(4, 5, -1)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN quads (off the image) stay NaN
+        spread = np.nanmax(np.nanmax(samples, 1) - np.nanmin(samples, 1), 0)
+    pp, pm, mp, mm = np.sort(samples, axis=1)[:, 2]  # median of the 5
+    return np.stack([pp - pm, pp - mp, mm - pm, mm - mp], 1), spread
+
+
+def x_like(gray: np.ndarray, xy: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+    """(N,) whether the grey level on a ring around each point (radius 0.3 of the distance to its
+    nearest point, 1.5..15 px) alternates twice like at a checker corner: 2nd angular harmonic above
+    the 1st and above MIN_CONTRAST."""
+    radius = np.clip(0.3 * np.linalg.norm(xy[nearest] - xy, axis=1), 1.5, 15.0)
+    theta = np.arange(16) * (2 * np.pi / 16)
+    mx = (xy[:, :1] + radius[:, None] * np.cos(theta)).astype(np.float32)
+    my = (xy[:, 1:] + radius[:, None] * np.sin(theta)).astype(np.float32)
+    ring = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+    ring -= ring.mean(1, keepdims=True)
+    first, second = (np.abs(ring @ np.exp(1j * k * theta)) / 8 for k in (1, 2))
+    return (second > first) & (second > MIN_CONTRAST)
