@@ -112,6 +112,26 @@ def test_missing_corners_leave_holes_not_broken_boards(hole):
     assert index_map(board, scene.grid[keep][board.corner_index]) is not None
 
 
+def test_completion_recovers_corners_missing_from_the_input_at_their_true_position():
+    """Corners the network missed (a column, a corner, the outer row) are taken from the image."""
+    for scene in whole_boards(3, board_sizes=((9, 6),), max_tilt_deg=25.0):
+        gone = (scene.grid[:, 1] == 4) | (scene.grid[:, 0] == 0) | ((scene.grid[:, 0] == 3) & (scene.grid[:, 1] == 7))
+        keep = np.nonzero(~gone)[0]
+        (plain,) = find_boards(scene.image, scene.corners[keep], np.ones(len(keep)))
+        (board,) = find_boards(scene.image, scene.corners[keep], np.ones(len(keep)), complete=True)
+        assert len(plain) == len(keep) and len(board) == 54
+        added = board.corner_index >= len(keep)
+        assert added.sum() == gone.sum()
+        d = np.linalg.norm(board.xy[added][:, None] - scene.corners[gone][None], axis=2).min(1)
+        assert d.max() < 0.25
+
+
+def test_completion_adds_nothing_beyond_the_board():
+    for scene in whole_boards(3, board_sizes=((7, 5),)):
+        (board,) = find_boards(scene.image, scene.corners, np.ones(len(scene.corners)), complete=True)
+        assert len(board) == 35 and (board.corner_index < 35).all()
+
+
 def test_points_on_the_board_outline_do_not_extend_the_board():
     """Detectors also fire where the outer squares meet the margin; those are not inner corners."""
     for scene in whole_boards(3, board_sizes=((7, 5),)):

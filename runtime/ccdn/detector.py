@@ -18,7 +18,7 @@ import numpy as np
 from .grid import Board, find_boards
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .peaks import find_peaks, kmeans_outliers, suppress
-from .refine import refine
+from .refine import refine, window_for_spacing
 from .result import Detection
 from .session import ScoreSession
 
@@ -102,28 +102,52 @@ class Detector:
             xy, values = xy[keep], values[keep]
         clock.lap("peaks")
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
-        refined, ok = refine(gray, start, self.refinement, max_shift=2.0 * scale)
+        radius = window_for_spacing(_median_spacing(start)) if len(start) > 1 else 3
+        refined, ok = refine(gray, start, self.refinement, 2.0 * scale, radius, wide=max(3 * scale - 1, radius + 2) if scale > 1 else 0)
         refined, values = refined[ok], values[ok]
         distinct = suppress(refined, radius=1.0)  # refinement can move two peaks onto one corner
         refined, values = refined[distinct], values[distinct]
         clock.lap("refine")
         found: tuple[Board, ...] = ()
         if self.filter == "grid" or boards or board_size is not None:
-            found = find_boards(gray, refined, values, board_size)
-            if self.filter == "grid" or board_size is not None:
+            complete = self.filter == "grid"
+            found = find_boards(gray, refined, values, board_size, complete=complete)
+            if complete:
+                refined, values = _with_completed(refined, values, found, score, scale)
+            if complete or board_size is not None:
                 refined, values, found = _keep_board_corners(refined, values, found)
             clock.lap("boards")
         return refined, values, found
 
 
+def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...], score: np.ndarray, scale: int):
+    """xy and values extended by the corners grid completion added (indices >= len(xy)); their score
+    is the network's best response within one pixel of them (usually below the threshold)."""
+    total = max([len(xy)] + [int(b.corner_index.max()) + 1 for b in boards])
+    if total == len(xy):
+        return xy, values
+    extra = np.zeros((total - len(xy), 2), np.float32)
+    for board in boards:
+        new = board.corner_index >= len(xy)
+        extra[board.corner_index[new] - len(xy)] = board.xy[new]
+    h, w = score.shape
+    near = cv2.dilate(score, np.ones((3, 3), np.uint8))
+    col = np.clip(np.rint((extra[:, 0] + 0.5) / scale - 0.5), 0, w - 1).astype(np.int64)
+    row = np.clip(np.rint((extra[:, 1] + 0.5) / scale - 0.5), 0, h - 1).astype(np.int64)
+    return np.concatenate([xy, extra]), np.concatenate([values, near[row, col]]).astype(np.float32)
+
+
 def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):
-    """Only the corners that belong to a board, in their original (score) order, boards re-indexed."""
+    """Only the corners that belong to a board, by descending score, boards re-indexed."""
     member = np.zeros(len(xy), bool)
     for board in boards:
         member[board.corner_index] = True
-    new_index = np.cumsum(member) - 1
+    keep = np.nonzero(member)[0]
+    keep = keep[np.argsort(-values[keep], kind="stable")]
+    new_index = np.empty(len(xy), np.int64)
+    new_index[keep] = np.arange(len(keep))
     boards = tuple(dataclasses.replace(b, corner_index=new_index[b.corner_index]) for b in boards)
-    return xy[member], values[member], boards
+    return xy[keep], values[keep], boards
 
 
 def _median_spacing(xy: np.ndarray) -> float:

@@ -17,6 +17,11 @@ outline). A grid of at least 3 x 3 positions and 8 corners is a board; its corne
 the search repeats for further boards. Corners in no board are dropped. Local predictions make this
 tolerant of perspective and strong radial/fisheye distortion.
 
+Completion (complete=True): where no given corner lies near a predicted position, the image itself
+is asked: a saddle point is fitted there (ccdn.refine, within the same tolerance) and taken if it
+passes the same image test. This recovers the corners the network scored too low (shadowed, blurred,
+or first found on a downscaled frame); such corners get indices >= len(xy), in order of addition.
+
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
 level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
 to a centre that is off the image) and all four edge-adjacent quad pairs must differ with the
@@ -49,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .checker import MIN_CONTRAST, Sampler, quad_differences, x_like
+from .refine import refine_saddle_points, window_for_spacing
 
 MIN_CORNERS = 8
 MIN_EXTENT = 3
@@ -90,8 +96,13 @@ class Board:
 class _Grower:
     """Grows one board from a seed square over the free corners."""
 
-    def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler) -> None:
+    def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.ndarray | None = None,
+                 first_added: int = 0) -> None:
         self.xy, self.free, self.sampler = xy, free.copy(), sampler
+        self.gray = gray  # given: complete the grid from the image (module docstring)
+        self.first_added = first_added  # index of this grower's first added corner
+        self.added: list[np.ndarray] = []
+        self.tried: set[tuple[int, int]] = set()  # positions completion has asked the image about
         self.at: dict[tuple[int, int], int] = {}
         self.stale: set[tuple[int, int]] = set()  # failed, and nothing near them changed since
         self.sign = 1.0
@@ -148,13 +159,18 @@ class _Grower:
 
     def _add(self, rc: tuple[int, int], idx: int) -> None:
         self.at[rc] = idx
-        self.free[idx] = False
+        if idx < len(self.free):
+            self.free[idx] = False
         r, c = rc
         self.stale -= {(r + i, c + j) for i in range(-_REACH, _REACH + 1) for j in range(-_REACH, _REACH + 1)}
 
+    def point(self, idx: int) -> np.ndarray:
+        """Position of corner idx: a given one, or one this grower added."""
+        return self.xy[idx] if idx < len(self.xy) else self.added[idx - self.first_added]
+
     def _p(self, r: int, c: int) -> np.ndarray | None:
         idx = self.at.get((r, c))
-        return None if idx is None else self.xy[idx]
+        return None if idx is None else self.point(idx)
 
     def _axis(self, r: int, c: int, dr: int, dc: int) -> np.ndarray | None:
         """The lattice step along (dr, dc) nearest to position (r, c), from filled pairs (or across a hole)."""
@@ -200,6 +216,7 @@ class _Grower:
         return None if u is None or v is None else TOLERANCE * min(math.hypot(*u), math.hypot(*v))
 
     def _take(self, rc: tuple[int, int], pred: np.ndarray, tol: float) -> bool:
+        """Fill position rc with the free corner nearest its prediction if it passes the image test."""
         free = np.nonzero(self.free)[0]
         if len(free) == 0:
             return False
@@ -210,13 +227,42 @@ class _Grower:
         self._add(rc, int(free[k]))
         return True
 
+    def _complete(self) -> bool:
+        """One round of completion over the whole frontier: the image's saddle points near the
+        predictions (one vectorised fit), each added if it passes the image test; True if any was."""
+        h, w = self.gray.shape
+        asked = []
+        for rc in self._frontier():
+            found = self._prediction(*rc) if rc not in self.tried else None
+            self.tried.add(rc)
+            if found is not None and 0 <= found[0][0] <= w - 1 and 0 <= found[0][1] <= h - 1:
+                asked.append((rc, *found))
+        if not asked:
+            return False
+        tol = np.array([t for _, _, t in asked])
+        radius = window_for_spacing(float(np.median(tol)) / TOLERANCE)
+        points, ok = refine_saddle_points(self.gray, np.array([p for _, p, _ in asked]), radius, 0.4 * radius,
+                                          max_shift=float(tol.max()), wide=int(np.clip(np.median(tol), radius + 2, 8)))
+        added = False
+        for (rc, pred, t), point, good in zip(asked, points.astype(np.float64), ok):
+            if not good or np.hypot(*(point - pred)) > t or not self._accepts(rc, point):
+                continue
+            taken = np.array([self._p(*q) for q in self.at])
+            if (np.linalg.norm(taken - point, axis=1) < t).any():
+                continue
+            self.added.append(point)
+            self._add(rc, self.first_added + len(self.added) - 1)
+            added = True
+        return added
+
     def _frontier(self) -> list[tuple[int, int]]:
         empty = {(r + dr, c + dc) for r, c in self.at for dr, dc in _DIRECTIONS} - self.at.keys()
         support = {q: sum((q[0] + i, q[1] + j) in self.at for i in (-1, 0, 1) for j in (-1, 0, 1)) for q in empty}
         return sorted(empty, key=lambda q: (-support[q], q))
 
     def grow(self) -> None:
-        """Add corners until neither a neighbour nor a position beyond a hole can be added."""
+        """Add corners until neither a neighbour, nor a position beyond a hole, nor (completing) a
+        corner from the image can be added."""
         while True:
             added = False
             for rc in self._frontier():
@@ -238,7 +284,7 @@ class _Grower:
                     tol = self._tolerance(r, c)
                     if tol is not None:
                         added |= self._take(target, 3 * p1 - 2 * p2, tol)
-            if not added:
+            if not added and not (self.gray is not None and self._complete()):
                 return
 
     def prune(self) -> None:
@@ -301,7 +347,7 @@ def _nearest(xy: np.ndarray, k: int) -> np.ndarray:
 
 
 def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size: tuple[int, int] | None = None,
-                *, allow_partial: bool = False) -> tuple[Board, ...]:
+                *, allow_partial: bool = False, complete: bool = False) -> tuple[Board, ...]:
     """Link corners into checkerboards: the boards found, largest first (ties: top, then left).
 
     gray: (H, W) uint8 image the corners come from. xy: (N, 2) corner positions (x, y), (0, 0) the
@@ -309,7 +355,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     board_size: (cols, rows) inner corners; if given, only boards of that size (either way round,
     re-indexed to cols x rows) are returned, or also smaller ones that fit it when allow_partial
     (their indices then start at 0 where the found part starts). See the module docstring for the
-    orientation of the indices.
+    orientation of the indices. complete: also take corners the image shows where the grid predicts
+    one that xy lacks (module docstring); their corner_index is >= len(xy), their position in Board.xy.
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
@@ -326,11 +373,11 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     corner_like = x_like(gray, xy, neighbours[:, 0])[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
     free = np.ones(n, bool)
-    found = []
+    found, added = [], []
     for s in seeds:
         if not free[s]:
             continue
-        grower = _Grower(xy, free, sampler)
+        grower = _Grower(xy, free, sampler, gray if complete else None, n + len(added))
         if not grower.seed(int(s), neighbours[s]):
             continue
         grower.grow()
@@ -342,15 +389,17 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
         extent = grid.max(0) - grid.min(0) + 1
         if extent.min() < MIN_EXTENT:
             continue
-        free[idx] = False  # a board of another size still owns its corners
-        oriented = _orient(grid, xy[idx], grower.sign, board_size, allow_partial)
+        free[idx[idx < n]] = False  # a board of another size still owns its corners
+        added.extend(grower.added)
+        oriented = _orient(grid, np.array([grower.point(i) for i in idx]), grower.sign, board_size, allow_partial)
         if oriented is not None:
             found.append((idx, oriented))
+    points = np.concatenate([xy, np.reshape(added, (-1, 2))])
     boards = []
     for idx, grid in found:
         order = np.lexsort((grid[:, 1], grid[:, 0]))
         idx, grid = idx[order], grid[order].astype(np.int32)
-        boards.append(Board(idx, grid, xy[idx].astype(np.float32), int(grid[:, 1].max() + 1),
+        boards.append(Board(idx, grid, points[idx].astype(np.float32), int(grid[:, 1].max() + 1),
                             int(grid[:, 0].max() + 1)))
     boards.sort(key=lambda b: (-len(b), float(b.xy[:, 1].mean()), float(b.xy[:, 0].mean())))
     for b in boards:

@@ -13,6 +13,10 @@ from .models import ModelError, model_path
 
 KNOWN_PREPROCESSING = {"gray_u8_div255"}
 MAX_DEFAULT_THREADS = 4
+STRIP_PIXELS = 1 << 21  # frames above this run in horizontal strips of about this many pixels ...
+HALO = 16  # ... each with this many extra rows above and below: more than the network's receptive
+# radius (11 px for the paper net), so the stitched map equals the whole-frame map while the
+# network's memory (20 float32 maps per pixel) stays bounded for any frame size
 
 
 def default_threads() -> int:
@@ -64,9 +68,20 @@ class ScoreSession:
         self.threads = options.intra_op_num_threads
         self._input = self._session.get_inputs()[0].name
 
-    def scores(self, gray: np.ndarray) -> np.ndarray:
-        """(H, W) uint8 -> (H, W) float32 corner scores."""
+    def scores(self, gray: np.ndarray, strip_pixels: int = STRIP_PIXELS) -> np.ndarray:
+        """(H, W) uint8 -> (H, W) float32 corner scores; big frames go in overlapping strips."""
+        h, w = gray.shape
+        rows = max(4 * HALO, strip_pixels // max(w, 1))
+        if h <= rows + 2 * HALO:
+            return self._run(gray)
+        out = np.empty((h, w), np.float32)
+        for top in range(0, h, rows):
+            bottom = min(top + rows, h)
+            a, b = max(top - HALO, 0), min(bottom + HALO, h)
+            out[top:bottom] = self._run(gray[a:b])[top - a : bottom - a]
+        return out
+
+    def _run(self, gray: np.ndarray) -> np.ndarray:
         x = gray.astype(np.float32)
         x *= 1.0 / 255.0
-        out = self._session.run(None, {self._input: x[None, None]})[0]
-        return out[0, 0]
+        return self._session.run(None, {self._input: x[None, None]})[0][0, 0]

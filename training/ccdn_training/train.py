@@ -102,7 +102,8 @@ def train(args: argparse.Namespace) -> None:
         rng.bit_generator.state = state["rng"]
         step, best_f1 = state["step"], state["best_f1"]
         print(f"resumed at step {step}", flush=True)
-    recipe = {**RECIPES[args.recipe], "recipe": args.recipe, "batch": args.batch, "crop": args.crop,
+    recipe = {**RECIPES[args.recipe], "lr": args.lr or RECIPES[args.recipe]["lr"], "clip_grad": args.clip_grad,
+              "recipe": args.recipe, "batch": args.batch, "crop": args.crop,
               "sigma": args.sigma, "tau": args.tau, "weight_decay": args.weight_decay, "seed": args.seed,
               "bank": str(args.bank), "steps": args.steps,
               "init_from": str(args.init_from) if args.init_from else "paper N(0, 0.1) / 0.1"}
@@ -113,7 +114,7 @@ def train(args: argparse.Namespace) -> None:
     log = (args.out / "log.jsonl").open("a")
     t0, losses = time.time(), []
     while step < args.steps:
-        lr = staircase_lr(step, RECIPES[args.recipe]["lr"], args.sigma, args.tau)
+        lr = staircase_lr(step, args.lr or RECIPES[args.recipe]["lr"], args.sigma, args.tau)
         for group in optimizer.param_groups:
             group["lr"] = lr
         xs, ys = bank.crops(rng, args.batch, args.crop)
@@ -122,6 +123,8 @@ def train(args: argparse.Namespace) -> None:
         loss = ccdn_loss(model(x, pre_activation=True), y, model, args.weight_decay)
         optimizer.zero_grad()
         loss.backward()
+        if args.clip_grad:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), args.clip_grad)
         optimizer.step()
         losses.append(loss.item())
         step += 1
@@ -154,6 +157,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tau", type=int, default=1000, help="steps per decay stair (eq. 6)")
     parser.add_argument("--weight-decay", type=float, default=1e-4,
                         help="lambda of eq. 4 (paper: 0.01, which on our renders keeps the output near constant)")
+    parser.add_argument("--lr", type=float, help="initial learning rate (default: the recipe's)")
+    parser.add_argument("--clip-grad", type=float, default=1.0, help="gradient norm clip (0: off)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--log-every", type=int, default=50)
