@@ -10,7 +10,7 @@ torch = pytest.importorskip("torch")
 
 from ccdn_training.export import to_onnx  # noqa: E402
 from ccdn_training.loss import ccdn_loss  # noqa: E402
-from ccdn_training.model import CCDN, parameter_count  # noqa: E402
+from ccdn_training.model import ARCHITECTURES, CCDN, FastCCDN, parameter_count  # noqa: E402
 from ccdn_training.synth import SceneConfig, render_scene  # noqa: E402
 from ccdn_training.train import staircase_lr  # noqa: E402
 
@@ -92,21 +92,44 @@ def test_rendered_labels_sit_on_the_saddle_points(lens):
     assert np.median(err) < (0.1 if lens == "fisheye" else 0.05)
 
 
-def test_onnx_export_matches_pytorch():
+@pytest.mark.parametrize("arch", ["paper", "fast"])
+def test_onnx_export_matches_pytorch(arch):
     """Tolerance 1e-4 absolute on scores of order 1 (float32 convolution order differs)."""
-    model = CCDN()
+    model = ARCHITECTURES[arch]()
     model.reset_parameters_paper()
     model.eval()
     proto = to_onnx(model, "test", "0", {"recipe": "none"})
     session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
-    x = np.random.default_rng(0).random((2, 1, 45, 61), dtype=np.float32)
+    x = np.random.default_rng(0).random((2, 1, 44, 60), dtype=np.float32)
     ours = session.run(None, {"image": x})[0]
     with torch.no_grad():
         ref = model(torch.from_numpy(x)).numpy()
+    assert ref.shape == x.shape and ref.max() > 0
     assert np.abs(ours - ref).max() < 1e-4
     meta = {p.key: p.value for p in proto.metadata_props}
-    assert meta["parameters"] == "16301" and meta["preprocessing"] == "gray_u8_div255"
+    assert meta["parameters"] == str(parameter_count(model)) and meta["preprocessing"] == "gray_u8_div255"
     assert [n.op_type for n in proto.graph.node].count("Pad") == 0
+
+
+def test_runtime_pads_frames_for_a_strided_model_and_stitches_its_strips(tmp_path):
+    """FastCCDN needs H, W multiples of 4: the runtime pads odd frames (edge pixels repeated),
+    crops the scores back, and its strips (with the metadata's receptive radius) stitch exactly."""
+    import onnx
+
+    import ccdn
+
+    model = FastCCDN()
+    model.reset_parameters_paper()
+    model.eval()
+    onnx.save(to_onnx(model, "fast-test", "0", {}), tmp_path / "fast.onnx")
+    detector = ccdn.Detector(tmp_path / "fast.onnx", threads=1)
+    gray = np.random.default_rng(1).integers(0, 256, (203, 157), dtype=np.uint8)
+    padded = np.pad(gray, ((0, 1), (0, 3)), mode="edge").astype(np.float32) / 255
+    with torch.no_grad():
+        ref = model(torch.from_numpy(padded)[None, None]).numpy()[0, 0, :203, :157]
+    np.testing.assert_allclose(detector.scores(gray), ref, atol=1e-4)
+    stitched = detector._session.scores(gray, strip_pixels=40 * 157)
+    np.testing.assert_allclose(stitched, ref, atol=1e-4)
 
 
 def test_shipped_model_matches_pytorch_with_its_own_weights(examples):

@@ -190,7 +190,8 @@ class Batch:
         tasks = [(item, self.overlay_path(item) if o.overlay else None) for item in todo]
         pool = None
         if self._detector is None:
-            pool = ordered_map(_work, tasks, o.workers, _init_worker, (o.model, o.threads or 1, o.max_pixels))
+            pool = ordered_map(_work, tasks, o.workers, _init_worker,
+                               (o.model, o.threads or 1, o.max_pixels, os.getpid()))
         outcomes: Iterator[Outcome | WorkerDied] = pool or map(_Worker(self._detector), tasks)
         try:
             for (item, _), outcome in zip(tasks, outcomes):
@@ -245,11 +246,13 @@ class _Worker:
 _worker: _Worker | None = None
 
 
-def _init_worker(model: str | os.PathLike | None, threads: int, max_pixels: int) -> None:
-    """Per-process set-up: one Detector, quiet OpenCV on one thread, Ctrl-C left to the parent."""
+def _init_worker(model: str | os.PathLike | None, threads: int, max_pixels: int, parent: int) -> None:
+    """Per-process set-up: one Detector, quiet OpenCV on one thread, Ctrl-C left to the parent.
+    parent: the parent's pid, passed in: a parent killed while this worker was starting would
+    already have left os.getppid() pointing at init."""
     global _worker
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     cv2.setNumThreads(1)
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     _worker = _Worker(Detector(model, threads, spinning=False, max_pixels=max_pixels))

@@ -67,11 +67,11 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     return np.stack([pp - pm, pp - mp, mm - pm, mm - mp], 1), spread
 
 
-def x_like(gray: np.ndarray, xy: np.ndarray, nearest: np.ndarray) -> np.ndarray:
-    """(N,) whether the grey level on a ring around each point (radius 0.3 of the distance to its
-    nearest point, 1.5..15 px) alternates twice like at a checker corner: 2nd angular harmonic above
-    the 1st and above MIN_CONTRAST."""
-    radius = np.clip(0.3 * np.linalg.norm(xy[nearest] - xy, axis=1), 1.5, 15.0)
+def x_like(gray: np.ndarray, xy: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """(N,) whether the grey level on a ring around each point (radius 0.3 of the `spacing` (N,) to
+    its neighbours, 1.5..15 px) alternates twice like at a checker corner: 2nd angular harmonic
+    above the 1st and above MIN_CONTRAST."""
+    radius = np.clip(0.3 * spacing, 1.5, 15.0)
     theta = np.arange(16) * (2 * np.pi / 16)
     mx = (xy[:, :1] + radius[:, None] * np.cos(theta)).astype(np.float32)
     my = (xy[:, 1:] + radius[:, None] * np.sin(theta)).astype(np.float32)

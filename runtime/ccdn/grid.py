@@ -19,7 +19,7 @@ tolerant of perspective and strong radial/fisheye distortion.
 
 Completion (complete=True): where no given corner lies near a predicted position, the image itself
 is asked: a saddle point is fitted there (ccdn.refine, within the same tolerance) and taken if it
-passes the same image test. This recovers the corners the network scored too low (shadowed, blurred,
+passes the ring test and the image test, made as strict as the seed's. This recovers the corners the network scored too low (shadowed, blurred,
 or first found on a downscaled frame); such corners get indices >= len(xy), in order of addition.
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
@@ -48,7 +48,7 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 
 from __future__ import annotations
 
-import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +69,14 @@ _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
 _NEARBY = sorted(((i, j) for i in range(-3, 4) for j in range(-3, 4)), key=lambda q: (abs(q[0]) + abs(q[1]), q))
 _REACH = 4  # a position's prediction and axes use filled positions up to this many steps away
+_NEAR_R = np.array([q[0] for q in _NEARBY])[None]
+_NEAR_C = np.array([q[1] for q in _NEARBY])[None]
+CANVAS_MARGIN = 8  # empty grid cells kept around a growing board: lookups from the frontier (or a
+# position beyond a hole, 2 cells out) reach 3 + 2 cells further, and must stay on the canvas
+_PRED_R = np.array([[k * dr for k in (1, 2, 3) for dr, _ in _DIRECTIONS]
+                    + [dr for dr, _ in _DIAGONALS] + [0] * 4 + [dr for dr, _ in _DIAGONALS]])
+_PRED_C = np.array([[k * dc for k in (1, 2, 3) for _, dc in _DIRECTIONS]
+                    + [0] * 4 + [dc for _, dc in _DIAGONALS] + [dc for _, dc in _DIAGONALS]])
 
 
 @dataclass(frozen=True)
@@ -102,11 +110,13 @@ class _Grower:
         self.gray = gray  # given: complete the grid from the image (module docstring)
         self.first_added = first_added  # index of this grower's first added corner
         self.added: list[np.ndarray] = []
-        self.tried: set[tuple[int, int]] = set()  # positions completion has asked the image about
-        self.at: dict[tuple[int, int], int] = {}
-        self.stale: set[tuple[int, int]] = set()  # failed, and nothing near them changed since
+        self.pos = self.idx = self.stale = self.tried = self.origin = None  # the canvas, made by _place
         self.sign = 1.0
         self.threshold = MIN_CONTRAST
+
+    def point(self, idx: int) -> np.ndarray:
+        """Position of corner idx: a given one, or one this grower added."""
+        return self.xy[idx] if idx < len(self.xy) else self.added[idx - self.first_added]
 
     def seed(self, s: int, neighbours: np.ndarray) -> bool:
         """Find a verified square at corner s (neighbours: its nearest corners, nearest first); on
@@ -158,143 +168,249 @@ class _Grower:
         return True
 
     def _add(self, rc: tuple[int, int], idx: int) -> None:
-        self.at[rc] = idx
-        if idx < len(self.free):
-            self.free[idx] = False
-        r, c = rc
-        self.stale -= {(r + i, c + j) for i in range(-_REACH, _REACH + 1) for j in range(-_REACH, _REACH + 1)}
+        """Seed placement: one corner at grid position rc."""
+        self._place(np.array([rc]), np.array([idx]))
 
-    def point(self, idx: int) -> np.ndarray:
-        """Position of corner idx: a given one, or one this grower added."""
-        return self.xy[idx] if idx < len(self.xy) else self.added[idx - self.first_added]
+    # --- the lattice canvas: positions of the grid cells, NaN where empty -------------------------
 
-    def _p(self, r: int, c: int) -> np.ndarray | None:
-        idx = self.at.get((r, c))
-        return None if idx is None else self.point(idx)
+    def _ensure_margin(self) -> None:
+        """Keep CANVAS_MARGIN empty cells around the filled ones, growing the canvas as needed."""
+        rows, cols = np.nonzero(self.idx >= 0)
+        h, w = self.idx.shape
+        before = (max(0, CANVAS_MARGIN - rows.min()), max(0, CANVAS_MARGIN - cols.min()))
+        after = (max(0, rows.max() + CANVAS_MARGIN + 1 - h), max(0, cols.max() + CANVAS_MARGIN + 1 - w))
+        if any(before) or any(after):
+            grow = ((before[0] + 8 * bool(before[0]), after[0] + 8 * bool(after[0])),
+                    (before[1] + 8 * bool(before[1]), after[1] + 8 * bool(after[1])))
+            self.pos = np.pad(self.pos, grow + ((0, 0),), constant_values=np.nan)
+            self.idx = np.pad(self.idx, grow, constant_values=-1)
+            self.stale = np.pad(self.stale, grow)
+            self.tried = np.pad(self.tried, grow)
+            self.origin += np.array([grow[0][0], grow[1][0]])
 
-    def _axis(self, r: int, c: int, dr: int, dc: int) -> np.ndarray | None:
-        """The lattice step along (dr, dc) nearest to position (r, c), from filled pairs (or across a hole)."""
-        for step in (1, 2):
-            for i, j in _NEARBY:
-                a, b = self._p(r + i, c + j), self._p(r + i + step * dr, c + j + step * dc)
-                if a is not None and b is not None:
-                    return (b - a) / step
-        return None
+    def _place(self, cells: np.ndarray, idx: np.ndarray) -> None:
+        """Fill cells (K, 2) (canvas-relative to origin) with corners idx (K,)."""
+        if self.pos is None:
+            size = 2 * CANVAS_MARGIN + 2
+            self.pos = np.full((size, size, 2), np.nan)
+            self.idx = np.full((size, size), -1, np.int64)
+            self.stale = np.zeros((size, size), bool)
+            self.tried = np.zeros((size, size), bool)
+            self.origin = np.array([CANVAS_MARGIN, CANVAS_MARGIN])
+        rc = cells + self.origin
+        self.idx[rc[:, 0], rc[:, 1]] = idx
+        self.pos[rc[:, 0], rc[:, 1]] = np.array([self.point(i) for i in idx]).reshape(-1, 2)
+        given = idx[idx < len(self.free)]
+        self.free[given] = False
+        near = np.zeros(self.idx.shape, bool)  # failed positions near a change may pass now
+        near[rc[:, 0], rc[:, 1]] = True
+        near = _dilate(near, _REACH)
+        self.stale &= ~near
+        self._ensure_margin()
 
-    def _accepts(self, rc: tuple[int, int], point: np.ndarray) -> bool:
-        """The image test at `point` for grid position rc (quads off the image are not counted)."""
-        u, v = self._axis(*rc, 0, 1), self._axis(*rc, 1, 0)
-        if u is None or v is None:
-            return False
-        parity = 1.0 if (rc[0] + rc[1]) % 2 == 0 else -1.0
-        diffs = quad_differences(self.sampler, point, u, v)[0][0] * parity * self.sign
-        diffs = diffs[np.isfinite(diffs)]
-        return bool(len(diffs) >= 2 and np.median(diffs) > self.threshold
-                    and diffs.min() > max(MIN_CONTRAST, PAIR_RATIO * diffs.max()))
+    def _gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Positions (..., 2) at canvas cells (rows, cols), NaN where empty (the canvas margin keeps
+        every lookup from the frontier on the canvas)."""
+        return self.pos[rows, cols]
 
-    def _prediction(self, r: int, c: int) -> tuple[np.ndarray, float] | None:
-        """Predicted position of (r, c) and the tolerance, or None without enough support."""
-        preds = []
-        for dr, dc in _DIRECTIONS:
-            p1, p2, p3 = (self._p(r + k * dr, c + k * dc) for k in (1, 2, 3))
-            if p1 is not None and p2 is not None:
-                preds.append(3 * p1 - 3 * p2 + p3 if p3 is not None else 2 * p1 - p2)
-            elif p1 is not None and p3 is not None:  # across a hole
-                preds.append(1.5 * p1 - 0.5 * p3)
-        for dr, dc in _DIAGONALS:
-            a, b, m = self._p(r + dr, c), self._p(r, c + dc), self._p(r + dr, c + dc)
-            if a is not None and b is not None and m is not None:
-                preds.append(a + b - m)
-        tol = self._tolerance(r, c)
-        if not preds or tol is None:
-            return None
-        return (preds[0] if len(preds) == 1 else np.median(preds, axis=0)), tol
+    def _axes(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The lattice steps along +col (u) and +row (v) nearest to each canvas cell (K, 2): from the
+        nearest filled pair (_NEARBY order), or across a hole (halved); NaN without one."""
+        a = self._gather(cells[:, 0:1] + _NEAR_R, cells[:, 1:2] + _NEAR_C)  # (K, 49, 2)
+        steps = []
+        for dr, dc in ((0, 1), (1, 0)):
+            diffs = [(self._gather(cells[:, 0:1] + _NEAR_R + k * dr, cells[:, 1:2] + _NEAR_C + k * dc) - a) / k
+                     for k in (1, 2)]
+            diff = np.concatenate(diffs, 1)  # (K, 98, 2): all one-step pairs first, nearest first
+            valid = np.isfinite(diff[..., 0])
+            first = valid.argmax(1)
+            found = diff[np.arange(len(cells)), first]
+            found[~valid.any(1)] = np.nan
+            steps.append(found)
+        return steps[0], steps[1]
 
-    def _tolerance(self, r: int, c: int) -> float | None:
-        """TOLERANCE times the shorter lattice step near (r, c)."""
-        u, v = self._axis(r, c, 0, 1), self._axis(r, c, 1, 0)
-        return None if u is None or v is None else TOLERANCE * min(math.hypot(*u), math.hypot(*v))
+    def _predict(self, cells: np.ndarray) -> np.ndarray:
+        """Predicted positions (K, 2) of canvas cells from the grid: along each row/column from the
+        previous two or three corners (or across a hole), and parallelograms with diagonal
+        neighbours; the median of the predictions, NaN without any."""
+        p = self._gather(cells[:, 0:1] + _PRED_R, cells[:, 1:2] + _PRED_C)  # (K, 24, 2)
+        p1, p2, p3 = p[:, 0:4], p[:, 4:8], p[:, 8:12]  # k = 1, 2, 3 steps along the 4 directions
+        line = np.where(np.isfinite(p3), 3 * p1 - 3 * p2 + p3, 2 * p1 - p2)
+        line = np.where(np.isfinite(p2), line, 1.5 * p1 - 0.5 * p3)
+        diagonal = p[:, 12:16] + p[:, 16:20] - p[:, 20:24]
+        preds = np.sort(np.concatenate([line, diagonal], 1), axis=1)  # NaNs sort last
+        n = np.isfinite(preds[..., 0]).sum(1)
+        lo, hi = np.maximum((n - 1) // 2, 0), n // 2
+        rows = np.arange(len(cells))
+        median = (preds[rows, lo] + preds[rows, np.minimum(hi, 7)]) / 2
+        median[n == 0] = np.nan
+        return median
 
-    def _take(self, rc: tuple[int, int], pred: np.ndarray, tol: float) -> bool:
-        """Fill position rc with the free corner nearest its prediction if it passes the image test."""
+    def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
+                 strict: bool = False) -> np.ndarray:
+        """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
+        image are not counted); strict (for corners the network did not propose): also the seed's
+        test of even contrast and uniform quads, which points on a board's outline next to clutter
+        fail."""
+        grid = cells - self.origin
+        parity = np.where((grid.sum(1) % 2) == 0, 1.0, -1.0)
+        diffs, spread = quad_differences(self.sampler, points, u, v)
+        diffs *= (parity * self.sign)[:, None]
+        finite = np.isfinite(diffs)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            median = np.nanmedian(diffs, axis=1)
+            low, high = np.nanmin(diffs, axis=1), np.nanmax(diffs, axis=1)
+        ok = (finite.sum(1) >= 2) & (median > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
+        if strict:
+            ok &= (low > 0.4 * median) & (spread < 0.5 * median)
+        return ok
+
+    def _frontier(self) -> np.ndarray:
+        """Empty canvas cells next to a filled one along a row or column, (K, 2)."""
+        filled = self.idx >= 0
+        near = np.zeros_like(filled)
+        near[1:] |= filled[:-1]
+        near[:-1] |= filled[1:]
+        near[:, 1:] |= filled[:, :-1]
+        near[:, :-1] |= filled[:, 1:]
+        return np.argwhere(near & ~filled)
+
+    def _take(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray) -> np.ndarray:
+        """Fill cells with the free corners nearest their predictions that pass the image test (one
+        corner per cell, the nearest cell wins a contested corner); (K,) which were filled."""
+        filled = np.zeros(len(cells), bool)
         free = np.nonzero(self.free)[0]
-        if len(free) == 0:
-            return False
-        d = np.linalg.norm(self.xy[free] - pred, axis=1)
-        k = int(d.argmin())
-        if d[k] >= tol or not self._accepts(rc, self.xy[free[k]]):
-            return False
-        self._add(rc, int(free[k]))
-        return True
+        if len(free) == 0 or len(cells) == 0:
+            return filled
+        d = np.linalg.norm(preds[:, None] - self.xy[free][None], axis=2)
+        nearest = d.argmin(1)
+        dist = d[np.arange(len(cells)), nearest]
+        u, v = self._axes(cells)
+        ok = np.nonzero(dist < tol)[0]
+        if len(ok) == 0:
+            return filled
+        ok = ok[self._accepts(cells[ok], self.xy[free[nearest[ok]]], u[ok], v[ok])]
+        ok = ok[np.argsort(dist[ok], kind="stable")]
+        ok = ok[np.unique(nearest[ok], return_index=True)[1]]  # a corner goes to its nearest cell
+        self._place(cells[ok] - self.origin, free[nearest[ok]])
+        filled[ok] = True
+        return filled
 
     def _complete(self) -> bool:
-        """One round of completion over the whole frontier: the image's saddle points near the
-        predictions (one vectorised fit), each added if it passes the image test; True if any was."""
+        """One round of completion over the frontier: the image's saddle points near the predictions
+        (one vectorised fit), added where they pass the image test; True if any was."""
+        cells = self._frontier()
+        cells = cells[~self.tried[cells[:, 0], cells[:, 1]]]
+        self.tried[cells[:, 0], cells[:, 1]] = True
+        preds, tol, u, v = self._support(cells)
         h, w = self.gray.shape
-        asked = []
-        for rc in self._frontier():
-            found = self._prediction(*rc) if rc not in self.tried else None
-            self.tried.add(rc)
-            if found is not None and 0 <= found[0][0] <= w - 1 and 0 <= found[0][1] <= h - 1:
-                asked.append((rc, *found))
-        if not asked:
+        ok = (np.isfinite(tol) & (preds[:, 0] >= 0) & (preds[:, 0] <= w - 1) & (preds[:, 1] >= 0)
+              & (preds[:, 1] <= h - 1))
+        cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
+        if len(cells) == 0:
             return False
-        tol = np.array([t for _, _, t in asked])
         radius = window_for_spacing(float(np.median(tol)) / TOLERANCE)
-        points, ok = refine_saddle_points(self.gray, np.array([p for _, p, _ in asked]), radius, 0.4 * radius,
-                                          max_shift=float(tol.max()), wide=int(np.clip(np.median(tol), radius + 2, 8)))
-        added = False
-        for (rc, pred, t), point, good in zip(asked, points.astype(np.float64), ok):
-            if not good or np.hypot(*(point - pred)) > t or not self._accepts(rc, point):
-                continue
-            taken = np.array([self._p(*q) for q in self.at])
-            if (np.linalg.norm(taken - point, axis=1) < t).any():
-                continue
-            self.added.append(point)
-            self._add(rc, self.first_added + len(self.added) - 1)
-            added = True
-        return added
+        points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, max_shift=float(tol.max()),
+                                            wide=int(np.clip(np.median(tol), radius + 2, 8)))
+        points = points.astype(np.float64)
+        shift = np.linalg.norm(points - preds, axis=1)
+        good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
+        good[good] &= self._accepts(cells[good], points[good], u[good], v[good], strict=True)
+        taken = self.pos[self.idx >= 0]
+        if len(taken):
+            good &= np.linalg.norm(points[:, None] - taken[None], axis=2).min(1) >= tol
+        keep = []
+        for k in np.nonzero(good)[0][np.argsort(shift[good], kind="stable")]:  # two cells, one point: once
+            if all(np.linalg.norm(points[k] - points[j]) >= tol[k] for j in keep):
+                keep.append(k)
+        if not keep:
+            return False
+        keep = np.array(keep)
+        first = self.first_added + len(self.added)
+        self.added.extend(points[keep])
+        self._place(cells[keep] - self.origin, np.arange(first, first + len(keep)))
+        return True
 
-    def _frontier(self) -> list[tuple[int, int]]:
-        empty = {(r + dr, c + dc) for r, c in self.at for dr, dc in _DIRECTIONS} - self.at.keys()
-        support = {q: sum((q[0] + i, q[1] + j) in self.at for i in (-1, 0, 1) for j in (-1, 0, 1)) for q in empty}
-        return sorted(empty, key=lambda q: (-support[q], q))
+    def _support(self, cells: np.ndarray):
+        """Predictions, tolerances (TOLERANCE x the shorter local step) and steps u, v for cells."""
+        u, v = self._axes(cells)
+        tol = TOLERANCE * np.minimum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
+        preds = self._predict(cells)
+        tol[~np.isfinite(preds).all(1)] = np.nan
+        return preds, tol, u, v
 
     def grow(self) -> None:
-        """Add corners until neither a neighbour, nor a position beyond a hole, nor (completing) a
-        corner from the image can be added."""
+        """Add corners round by round (all open positions of the frontier at once) until neither a
+        neighbour, nor a position beyond a hole, nor (completing) a corner from the image is added."""
         while True:
-            added = False
-            for rc in self._frontier():
-                if rc in self.stale:
-                    continue
-                found = self._prediction(*rc)
-                if found is not None and self._take(rc, *found):
-                    added = True
-                else:
-                    self.stale.add(rc)
-            if added:
+            cells = self._frontier()
+            cells = cells[~self.stale[cells[:, 0], cells[:, 1]]]
+            preds, tol, _, _ = self._support(cells)
+            known = np.isfinite(tol)
+            filled = np.zeros(len(cells), bool)
+            origin = self.origin.copy()
+            filled[known] = self._take(cells[known], preds[known], tol[known])
+            failed = cells[~filled] + (self.origin - origin)  # the canvas may have grown
+            self.stale[failed[:, 0], failed[:, 1]] = True
+            if filled.any() or self._jump_holes() or (self.gray is not None and self._complete()):
                 continue
-            for r, c in self._frontier():  # jump over a hole: two steps along a row or column
-                for dr, dc in _DIRECTIONS:
-                    p1, p2 = self._p(r + dr, c + dc), self._p(r + 2 * dr, c + 2 * dc)
-                    target = (r - dr, c - dc)
-                    if p1 is None or p2 is None or target in self.at:
-                        continue
-                    tol = self._tolerance(r, c)
-                    if tol is not None:
-                        added |= self._take(target, 3 * p1 - 2 * p2, tol)
-            if not added and not (self.gray is not None and self._complete()):
-                return
+            return
+
+    def _jump_holes(self) -> bool:
+        """Positions two steps beyond the frontier along a row or column (across a one-corner hole)."""
+        cells = self._frontier()
+        targets, preds, tols = [], [], []
+        _, tol, _, _ = self._support(cells)
+        for dr, dc in _DIRECTIONS:
+            p1 = self._gather(cells[:, 0] + dr, cells[:, 1] + dc)
+            p2 = self._gather(cells[:, 0] + 2 * dr, cells[:, 1] + 2 * dc)
+            target = cells - [dr, dc]
+            t = self._gather(target[:, 0], target[:, 1])
+            ok = np.isfinite(p1[:, 0]) & np.isfinite(p2[:, 0]) & np.isnan(t[:, 0]) & np.isfinite(tol)
+            ok &= (target >= 0).all(1) & (target < self.idx.shape).all(1)
+            targets.append(target[ok])
+            preds.append((3 * p1 - 2 * p2)[ok])
+            tols.append(tol[ok])
+        targets, preds, tols = np.concatenate(targets), np.concatenate(preds), np.concatenate(tols)
+        if len(targets) == 0:
+            return False
+        _, first = np.unique(targets, axis=0, return_index=True)
+        first = np.sort(first)
+        return bool(self._take(targets[first], preds[first], tols[first]).any())
 
     def prune(self) -> None:
         """Drop corners with fewer than 2 row/column neighbours: lone points on a board's outline."""
         while True:
-            weak = [(r, c) for r, c in self.at if sum((r + dr, c + dc) in self.at for dr, dc in _DIRECTIONS) < 2]
-            if not weak:
+            filled = self.idx >= 0
+            count = np.zeros(filled.shape, np.int64)
+            count[1:] += filled[:-1]
+            count[:-1] += filled[1:]
+            count[:, 1:] += filled[:, :-1]
+            count[:, :-1] += filled[:, 1:]
+            weak = filled & (count < 2)
+            if not weak.any():
                 return
-            for rc in weak:
-                del self.at[rc]
+            self.idx[weak] = -1
+            self.pos[weak] = np.nan
+
+    def cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """The board so far: grid positions (M, 2) (row, col) and corner indices (M,)."""
+        rc = np.argwhere(self.idx >= 0)
+        return rc - self.origin, self.idx[rc[:, 0], rc[:, 1]]
+
+
+def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
+    """mask grown by `reach` cells in rows and columns (a square neighbourhood)."""
+    out = mask.copy()
+    for _ in range(reach):
+        grown = out.copy()
+        grown[1:] |= out[:-1]
+        grown[:-1] |= out[1:]
+        out = grown.copy()
+        out[:, 1:] |= grown[:, :-1]
+        out[:, :-1] |= grown[:, 1:]
+    return out
 
 
 def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,
@@ -370,7 +486,7 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     sampler = Sampler(gray)
     neighbours = _nearest(xy, SEED_REACH)
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
-    corner_like = x_like(gray, xy, neighbours[:, 0])[order]
+    corner_like = x_like(gray, xy, np.linalg.norm(xy[neighbours[:, 0]] - xy, axis=1))[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
     free = np.ones(n, bool)
     found, added = [], []
@@ -382,10 +498,9 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
             continue
         grower.grow()
         grower.prune()
-        if len(grower.at) < MIN_CORNERS:
+        grid, idx = grower.cells()
+        if len(idx) < MIN_CORNERS:
             continue
-        idx = np.array(list(grower.at.values()), np.int64)
-        grid = np.array(list(grower.at.keys()), np.int64)
         extent = grid.max(0) - grid.min(0) + 1
         if extent.min() < MIN_EXTENT:
             continue

@@ -13,10 +13,11 @@ from .models import ModelError, model_path
 
 KNOWN_PREPROCESSING = {"gray_u8_div255"}
 MAX_DEFAULT_THREADS = 4
-STRIP_PIXELS = 1 << 21  # frames above this run in horizontal strips of about this many pixels ...
-HALO = 16  # ... each with this many extra rows above and below: more than the network's receptive
-# radius (11 px for the paper net), so the stitched map equals the whole-frame map while the
-# network's memory (20 float32 maps per pixel) stays bounded for any frame size
+STRIP_PIXELS = 1 << 20  # frames above this run in horizontal strips of about this many pixels, each
+# with extra rows above and below beyond the network's receptive radius (metadata; 11 px for the
+# paper net), so the stitched map equals the whole-frame map while the network's memory (some 20
+# float32 maps per pixel) stays bounded for any frame size
+DEFAULT_RECEPTIVE_RADIUS = 16  # for models whose metadata does not say
 
 
 def default_threads() -> int:
@@ -39,6 +40,13 @@ class ModelInfo:
     metadata: dict[str, str]
 
 
+def _load(path: Path, options: ort.SessionOptions) -> ort.InferenceSession:
+    try:
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own exception types for bad models
+        raise ModelError(f"{path}: onnxruntime cannot load it ({exc})") from exc
+
+
 class ScoreSession:
     """Runs the network on a gray uint8 frame and returns its (H, W) float32 score map.
 
@@ -51,37 +59,45 @@ class ScoreSession:
         options.intra_op_num_threads = threads or default_threads()
         options.inter_op_num_threads = 1
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        # EXTENDED beats ALL here: ALL's blocked layout pads the 20 channels to multiples of 16.
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED
         options.log_severity_level = 3
         if not spinning:
             options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        try:
-            self._session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own exception types for bad models
-            raise ModelError(f"{path}: onnxruntime cannot load it ({exc})") from exc
+        self._session = _load(path, options)
         meta = dict(self._session.get_modelmeta().custom_metadata_map)
+        if meta.get("graph_optimization") == "all":
+            # ALL lays convs out in blocks of 16 channels: faster for models built for it (their
+            # metadata says so), slower for the paper net's 20 channels (measured)
+            options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+            self._session = _load(path, options)
         preprocessing = meta.get("preprocessing")
         if preprocessing not in KNOWN_PREPROCESSING:
             raise ModelError(f"{path}: unknown preprocessing {preprocessing!r}; this runtime knows {sorted(KNOWN_PREPROCESSING)}")
         self.info = ModelInfo(path, meta.get("name", path.stem), meta.get("version", "unknown"), preprocessing, meta)
         self.threads = options.intra_op_num_threads
         self._input = self._session.get_inputs()[0].name
+        self.multiple = int(meta.get("input_multiple", 1))  # H, W must be multiples of this
+        radius = int(meta.get("receptive_radius", DEFAULT_RECEPTIVE_RADIUS))
+        self.halo = -(-(radius + 1) // self.multiple) * self.multiple
 
     def scores(self, gray: np.ndarray, strip_pixels: int = STRIP_PIXELS) -> np.ndarray:
         """(H, W) uint8 -> (H, W) float32 corner scores; big frames go in overlapping strips."""
         h, w = gray.shape
-        rows = max(4 * HALO, strip_pixels // max(w, 1))
-        if h <= rows + 2 * HALO:
+        rows = max(4 * self.halo, strip_pixels // max(w, 1)) // self.multiple * self.multiple
+        if h <= rows + 2 * self.halo:
             return self._run(gray)
         out = np.empty((h, w), np.float32)
         for top in range(0, h, rows):
             bottom = min(top + rows, h)
-            a, b = max(top - HALO, 0), min(bottom + HALO, h)
+            a, b = max(top - self.halo, 0), min(bottom + self.halo, h)
             out[top:bottom] = self._run(gray[a:b])[top - a : bottom - a]
         return out
 
     def _run(self, gray: np.ndarray) -> np.ndarray:
-        x = gray.astype(np.float32)
+        """The network on one frame, padded (edge pixels repeated) to the model's input multiple."""
+        h, w = gray.shape
+        pad_h, pad_w = -h % self.multiple, -w % self.multiple
+        x = np.pad(gray, ((0, pad_h), (0, pad_w)), mode="edge") if pad_h or pad_w else gray
+        x = x.astype(np.float32)
         x *= 1.0 / 255.0
-        return self._session.run(None, {self._input: x[None, None]})[0][0, 0]
+        return self._session.run(None, {self._input: x[None, None]})[0][0, 0, :h, :w]

@@ -17,8 +17,9 @@ import numpy as np
 import onnx
 import torch
 from onnx import TensorProto, helper, numpy_helper
+from torch import nn
 
-from .model import CCDN, parameter_count
+from .model import ARCHITECTURES, parameter_count
 
 OPSET = 17
 PREPROCESSING = "gray_u8_div255"  # input = gray uint8 image / 255, float32, shape (N, 1, H, W)
@@ -33,26 +34,37 @@ def _git_commit() -> str:
         return "unknown"
 
 
-def to_onnx(model: CCDN, name: str, version: str, recipe: dict) -> onnx.ModelProto:
-    """Build the ONNX graph of `model`: input "image" (N,1,H,W) float32 -> output "score" (N,1,H,W)."""
+def to_onnx(model: nn.Module, name: str, version: str, recipe: dict) -> onnx.ModelProto:
+    """Build the ONNX graph of `model` from its layers(): input "image" (N,1,H,W) float32 -> output
+    "score" (N,1,H,W). Initializers are named like the module's parameters."""
     nodes, inits = [], []
     x = "image"
-    pools = {1: [0, 0, 1, 1], 4: [1, 1, 0, 0]}  # after conv1: pad bottom/right; after conv4: top/left
-    for i, conv in enumerate(model.convs(), start=1):
-        w = conv.weight.detach().cpu().numpy().astype(np.float32)
-        b = conv.bias.detach().cpu().numpy().astype(np.float32)
-        inits += [numpy_helper.from_array(w, f"conv{i}.weight"), numpy_helper.from_array(b, f"conv{i}.bias")]
-        k = w.shape[-1]
-        p = k // 2
-        nodes.append(helper.make_node("Conv", [x, f"conv{i}.weight", f"conv{i}.bias"], [f"conv{i}"],
-                                      kernel_shape=[k, k], pads=[p, p, p, p], name=f"conv{i}"))
-        out = "score" if i == 6 else f"relu{i}"
-        nodes.append(helper.make_node("Relu", [f"conv{i}"], [out], name=f"relu{i}"))
+    params = {id(p): n for n, p in model.named_parameters()}
+    for i, layer in enumerate(model.layers()):
+        kind, out = layer[0], f"{layer[0]}{i}"
+        if kind == "conv":
+            conv, relu = layer[1], layer[2]
+            w_name, b_name = params[id(conv.weight)], params[id(conv.bias)]
+            inits += [numpy_helper.from_array(conv.weight.detach().cpu().numpy().astype(np.float32), w_name),
+                      numpy_helper.from_array(conv.bias.detach().cpu().numpy().astype(np.float32), b_name)]
+            k = conv.weight.shape[-1]
+            nodes.append(helper.make_node("Conv", [x, w_name, b_name], [out], kernel_shape=[k, k], pads=[k // 2] * 4,
+                                          name=out))
+            if relu:
+                nodes.append(helper.make_node("Relu", [out], [out + "_relu"], name=out + "_relu"))
+                out += "_relu"
+        elif kind == "maxpool":
+            _, k, stride, pads = layer
+            nodes.append(helper.make_node("MaxPool", [x], [out], kernel_shape=[k, k], strides=[stride, stride],
+                                          pads=list(pads), name=out))
+        elif kind == "depth_to_space":
+            nodes.append(helper.make_node("DepthToSpace", [x], [out], blocksize=layer[1], mode="CRD", name=out))
+        elif kind == "relu":
+            nodes.append(helper.make_node("Relu", [x], [out], name=out))
+        else:
+            raise ValueError(f"unknown layer {kind!r}")
         x = out
-        if i in pools:
-            nodes.append(helper.make_node("MaxPool", [x], [f"pool{i}"], kernel_shape=[2, 2], strides=[1, 1],
-                                          pads=pools[i], name=f"pool{i}"))
-            x = f"pool{i}"
+    nodes[-1].output[0] = "score"
     dims = ["batch", 1, "height", "width"]
     graph = helper.make_graph(
         nodes, "ccdn",
@@ -70,15 +82,34 @@ def to_onnx(model: CCDN, name: str, version: str, recipe: dict) -> onnx.ModelPro
         "recipe": json.dumps(recipe, sort_keys=True),
         "commit": _git_commit(),
         "parameters": str(parameter_count(model)),
+        "input_multiple": str(getattr(model, "stride", 1)),  # H and W must be multiples of this
+        "receptive_radius": str(receptive_radius(model)),  # px: how far a pixel's score sees
+        # onnxruntime's ALL level lays convs out in blocks of 16 channels: a win when the channel
+        # counts are multiples of 16 (FastCCDN), a loss for the paper net's 20 (measured)
+        "graph_optimization": "all" if all(c.out_channels % 16 == 0 for c in model.convs()[:-1]) else "extended",
     }
     helper.set_model_props(proto, meta)
     onnx.checker.check_model(proto, full_check=True)
     return proto
 
 
-def load_checkpoint(path: Path) -> CCDN:
-    model = CCDN()
+def receptive_radius(model: nn.Module) -> int:
+    """How many pixels beyond itself one output pixel depends on, from the layer list."""
+    radius, scale = 0, 1
+    for layer in model.layers():
+        if layer[0] == "conv":
+            radius += (layer[1].weight.shape[-1] // 2) * scale
+        elif layer[0] == "maxpool":
+            radius += (layer[1] - 1) * scale
+            scale *= layer[2]
+        elif layer[0] == "depth_to_space":
+            radius += layer[1] - 1
+    return radius
+
+
+def load_checkpoint(path: Path) -> nn.Module:
     state = torch.load(path, map_location="cpu", weights_only=False)
+    model = ARCHITECTURES[state.get("arch", "paper")]()
     model.load_state_dict(state["model"])
     return model.eval()
 

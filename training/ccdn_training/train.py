@@ -21,7 +21,7 @@ from torch.nn import functional as F
 
 from .bank import SceneBank
 from .loss import ccdn_loss
-from .model import CCDN
+from .model import ARCHITECTURES
 
 RECIPES = {
     "paper": {"optimizer": "sgd", "lr": 0.01, "momentum": 0.9},
@@ -34,7 +34,7 @@ def staircase_lr(step: int, lr0: float, sigma: float, tau: int) -> float:
     return lr0 * sigma ** (step // tau)
 
 
-def make_optimizer(model: CCDN, recipe: str) -> torch.optim.Optimizer:
+def make_optimizer(model: torch.nn.Module, recipe: str) -> torch.optim.Optimizer:
     spec = RECIPES[recipe]
     if spec["optimizer"] == "sgd":
         return torch.optim.SGD(model.parameters(), lr=spec["lr"], momentum=spec["momentum"])
@@ -42,7 +42,7 @@ def make_optimizer(model: CCDN, recipe: str) -> torch.optim.Optimizer:
 
 
 @torch.no_grad()
-def validate(model: CCDN, bank: SceneBank, radius: float = 3.0, relative: float = 0.5, floor: float = 0.3) -> dict:
+def validate(model: torch.nn.Module, bank: SceneBank, radius: float = 3.0, relative: float = 0.5, floor: float = 0.3) -> dict:
     """Precision, recall and F1 on full validation scenes of 5x5 local maxima above the runtime's
     threshold, max(relative * max score, floor): the balanced loss makes scores relative, not absolute."""
     model.eval()
@@ -86,7 +86,7 @@ def save_checkpoint(path: Path, **state) -> None:
 def train(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
-    model = CCDN()
+    model = ARCHITECTURES[args.arch]()
     model.reset_parameters_paper()
     if args.init_from:  # warm start from another run's weights (recorded in the recipe)
         model.load_state_dict(torch.load(args.init_from, map_location="cpu", weights_only=False)["model"])
@@ -103,7 +103,7 @@ def train(args: argparse.Namespace) -> None:
         step, best_f1 = state["step"], state["best_f1"]
         print(f"resumed at step {step}", flush=True)
     recipe = {**RECIPES[args.recipe], "lr": args.lr or RECIPES[args.recipe]["lr"], "clip_grad": args.clip_grad,
-              "recipe": args.recipe, "batch": args.batch, "crop": args.crop,
+              "recipe": args.recipe, "arch": args.arch, "batch": args.batch, "crop": args.crop,
               "sigma": args.sigma, "tau": args.tau, "weight_decay": args.weight_decay, "seed": args.seed,
               "bank": str(args.bank), "steps": args.steps,
               "init_from": str(args.init_from) if args.init_from else "paper N(0, 0.1) / 0.1"}
@@ -135,12 +135,13 @@ def train(args: argparse.Namespace) -> None:
                 entry["val"] = validate(model, val_bank)
                 if entry["val"]["f1"] > best_f1:
                     best_f1 = entry["val"]["f1"]
-                    save_checkpoint(args.out / "best.pt", model=model.state_dict(), step=step, val=entry["val"])
+                    save_checkpoint(args.out / "best.pt", model=model.state_dict(), arch=args.arch, step=step,
+                                    val=entry["val"])
             log.write(json.dumps(entry) + "\n")
             log.flush()
             print(json.dumps(entry), flush=True)
         if step % args.checkpoint_every == 0 or step == args.steps:
-            save_checkpoint(last, model=model.state_dict(), optimizer=optimizer.state_dict(),
+            save_checkpoint(last, model=model.state_dict(), arch=args.arch, optimizer=optimizer.state_dict(),
                             rng=rng.bit_generator.state, step=step, best_f1=best_f1)
 
 
@@ -150,6 +151,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--val-bank", type=Path, help="validation scenes (.npz)")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--recipe", choices=sorted(RECIPES), default="adam")
+    parser.add_argument("--arch", choices=sorted(ARCHITECTURES), default="paper",
+                        help="paper: the paper's CCDN; fast: FastCCDN (model.py)")
     parser.add_argument("--steps", type=int, default=6000)
     parser.add_argument("--batch", type=int, default=32)
     parser.add_argument("--crop", type=int, default=96)
