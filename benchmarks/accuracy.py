@@ -4,7 +4,10 @@ Metrics (paper section 4, 5 px match radius): each label's nearest detection wit
 (accuracy: its distance in px, mean and 95th percentile); a label without one is missed; further
 detections within 5 px of an already-hit label are doubles; detections near no label are false
 positives (renders: detections near a deliberately ignored, e.g. occluded, corner are not counted).
-Reported per source and overall, with precision and recall.
+Reported per source and overall, with precision and recall. On real-dev also the boards (grid
+recovery): an image counts as recovered when the detection's largest board has the labelled size
+(either way round) and every one of its corners that matches a label carries that label's (row, col)
+up to one of the board's 8 symmetries (labels are row-major); a spurious board is any further board.
 
     python benchmarks/accuracy.py [--model paper] [--refinement saddle] [--json out/accuracy.json]
 """
@@ -80,16 +83,38 @@ def summarise(rows: list[dict]) -> dict:
         "fp_per_image": sum(r["false_positives"] for r in rows) / max(len(rows), 1),
         "precision": hits / dets if dets else None,
         "recall": hits / labels if labels else None,
+        **({"boards_recovered": sum(r["board_recovered"] for r in rows),
+            "spurious_boards": sum(r["spurious_boards"] for r in rows)} if rows and "board_recovered" in rows[0] else {}),
     }
 
 
 def real_dev_cases():
-    """(group, name, image path, labels (M, 2)) for each labelled real photo."""
+    """(group, name, image path, labels (M, 2), labelled board sizes [(cols, rows)]) per real photo."""
     meta = json.loads((REAL_DEV / "labels.json").read_text())
     for item in meta["images"]:
         labels = np.concatenate([np.asarray(b["corners"], np.float64).reshape(-1, 2) for b in item["boards"]])
         group = item["source"].split("@")[0]
-        yield group, item["file"], REAL_DEV / "images" / item["file"], labels
+        yield group, item["file"], REAL_DEV / "images" / item["file"], labels, [(b["cols"], b["rows"]) for b in item["boards"]]
+
+
+SYMMETRIES = [np.array(m) for m in ([[1, 0], [0, 1]], [[0, -1], [1, 0]], [[-1, 0], [0, -1]], [[0, 1], [-1, 0]],
+                                    [[0, 1], [1, 0]], [[1, 0], [0, -1]], [[0, -1], [-1, 0]], [[-1, 0], [0, 1]])]
+
+
+def board_recovered(result: ccdn.Detection, labels: np.ndarray, cols: int, rows: int) -> bool:
+    """Whether the largest board has the labelled size and indices consistent with the labels."""
+    if not result.boards:
+        return False
+    board = result.boards[0]
+    if sorted((board.cols, board.rows)) != sorted((cols, rows)):
+        return False
+    d = np.linalg.norm(board.xy[:, None].astype(np.float64) - labels[None], axis=2)
+    hit = d.min(1) < MATCH_RADIUS
+    if hit.sum() < 4:
+        return False
+    true = np.column_stack(np.divmod(d.argmin(1)[hit], cols))
+    found = board.grid[hit]
+    return any((lambda off: (off == off[0]).all())(found - true @ m.T) for m in SYMMETRIES)
 
 
 def synthetic_cases(count: int, seed: int):
@@ -108,8 +133,11 @@ def evaluate(detector: ccdn.Detector, synthetic: int, seed: int) -> dict:
     groups: dict[str, list[dict]] = defaultdict(list)
     per_image = []
     if REAL_DEV.is_dir():
-        for group, name, path, labels in real_dev_cases():
-            r = match(detector.detect(path).xy, labels)
+        for group, name, path, labels, sizes in real_dev_cases():
+            result = detector.detect(path, boards=True)
+            r = match(result.xy, labels)
+            r["board_recovered"] = len(sizes) == 1 and board_recovered(result, labels, *sizes[0])
+            r["spurious_boards"] = max(0, len(result.boards) - len(sizes))
             groups[group].append(r)
             per_image.append({"group": group, "image": name, **{k: v for k, v in r.items() if k != "errors"}})
     else:
@@ -133,6 +161,10 @@ def format_table(groups: dict) -> str:
         lines.append(f"{name:<34}{s['images']:>5}{s['labels']:>7}{fmt(s['accuracy_px'], '>8.3f')}{fmt(s['accuracy_p95_px'], '>7.2f')}"
                      f"{s['missed_pct']:>8.2f}{s['double_pct']:>7.2f}{s['false_positives']:>5}{s['fp_per_image']:>7.2f}"
                      f"{fmt(s['precision'], '>7.3f')}{fmt(s['recall'], '>7.3f')}")
+    boards = {n: s for n, s in groups.items() if "boards_recovered" in s}
+    if boards:
+        lines += ["", f"{'boards (real-dev)':<34}{'imgs':>5}{'recovered':>10}{'spurious':>9}"]
+        lines += [f"{n:<34}{s['images']:>5}{s['boards_recovered']:>10}{s['spurious_boards']:>9}" for n, s in boards.items()]
     return "\n".join(lines)
 
 

@@ -48,7 +48,6 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +59,7 @@ MIN_CORNERS = 8
 MIN_EXTENT = 3
 SEED_NEIGHBOURS = 12  # a seed's square is sought among these nearest corners ...
 SEED_REACH = 24  # ... and its fourth corner among these
+SEED_CHUNK = 256  # seeds checked at once
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 TOLERANCE = 0.3  # of the shorter local lattice step
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
@@ -118,54 +118,12 @@ class _Grower:
         """Position of corner idx: a given one, or one this grower added."""
         return self.xy[idx] if idx < len(self.xy) else self.added[idx - self.first_added]
 
-    def seed(self, s: int, neighbours: np.ndarray) -> bool:
-        """Find a verified square at corner s (neighbours: its nearest corners, nearest first); on
-        success the grid holds the square's 4 corners."""
-        candidates = neighbours[self.free[neighbours]]
-        nb = candidates[:SEED_NEIGHBOURS]
-        if len(nb) < 3:
-            return False
-        p = self.xy[s]
-        i, j = np.triu_indices(len(nb), 1)
-        u, v = self.xy[nb[i]] - p, self.xy[nb[j]] - p
-        lu, lv = np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1)
-        cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
-        ok = ((np.abs(cross) > 0.3 * lu * lv) & (lu < 5 * lv) & (lv < 5 * lu)
-              & (np.abs(cross) >= MIN_SQUARE_PX * np.maximum(lu, lv)))
-        if not ok.any():
-            return False
-        flip = cross < 0  # order each pair so that u x v > 0: +col, +row like image +x, +y
-        a, b = np.where(flip, nb[j], nb[i])[ok], np.where(flip, nb[i], nb[j])[ok]
-        u, v = self.xy[a] - p, self.xy[b] - p
-        d = np.linalg.norm(self.xy[candidates][None] - (p + u + v)[:, None], axis=2)
-        nearest = d.argmin(1)
-        tol = TOLERANCE * np.minimum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
-        good = np.nonzero(d[np.arange(len(d)), nearest] < tol)[0]
-        fourth = candidates[nearest[good]]
-        good = good[(fourth != s) & (fourth != a[good]) & (fourth != b[good])]
-        if len(good) == 0:
-            return False
-        corners = np.stack([np.full(len(good), s), a[good], b[good], candidates[nearest[good]]], 1)  # (G, 4)
-        diffs, spread = quad_differences(self.sampler, self.xy[corners.ravel()], np.repeat(u[good], 4, 0),
-                                          np.repeat(v[good], 4, 0))
-        # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
-        diffs = (diffs.reshape(-1, 4, 4) * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(good), 16)
-        spread = spread.reshape(-1, 4).max(1)
-        sign = np.sign(np.median(diffs, axis=1))
-        contrast = np.median(diffs * sign[:, None], axis=1)
-        with np.errstate(invalid="ignore"):
-            passed = ((sign != 0) & (np.min(diffs * sign[:, None], axis=1) > np.maximum(MIN_CONTRAST, 0.4 * contrast))
-                      & (spread < 0.5 * contrast))
-        if not passed.any():
-            return False
-        # the colour test cannot tell (u, v) from (u, v + 2u) and the like: take the shortest basis
-        size = np.maximum(np.linalg.norm(u[good], axis=1), np.linalg.norm(v[good], axis=1))
-        k = int(np.argmin(np.where(passed, size, np.inf)))
-        self.sign = float(sign[k])  # + : quads of even row + col are light
-        self.threshold = max(MIN_CONTRAST, RELATIVE_CONTRAST * float(contrast[k]))
-        for rc, idx in zip(((0, 0), (0, 1), (1, 0), (1, 1)), corners[k]):
+    def seed(self, corners: np.ndarray, sign: float, contrast: float) -> None:
+        """Start the grid from a verified square (_seed_squares): corners (0,0), (0,1), (1,0), (1,1)."""
+        self.sign = sign  # + : quads of even row + col are light
+        self.threshold = max(MIN_CONTRAST, RELATIVE_CONTRAST * contrast)
+        for rc, idx in zip(((0, 0), (0, 1), (1, 0), (1, 1)), corners):
             self._add(rc, int(idx))
-        return True
 
     def _add(self, rc: tuple[int, int], idx: int) -> None:
         """Seed placement: one corner at grid position rc."""
@@ -238,13 +196,7 @@ class _Grower:
         line = np.where(np.isfinite(p3), 3 * p1 - 3 * p2 + p3, 2 * p1 - p2)
         line = np.where(np.isfinite(p2), line, 1.5 * p1 - 0.5 * p3)
         diagonal = p[:, 12:16] + p[:, 16:20] - p[:, 20:24]
-        preds = np.sort(np.concatenate([line, diagonal], 1), axis=1)  # NaNs sort last
-        n = np.isfinite(preds[..., 0]).sum(1)
-        lo, hi = np.maximum((n - 1) // 2, 0), n // 2
-        rows = np.arange(len(cells))
-        median = (preds[rows, lo] + preds[rows, np.minimum(hi, 7)]) / 2
-        median[n == 0] = np.nan
-        return median
+        return _nanmedian_rows(np.concatenate([line, diagonal], 1))
 
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
                  strict: bool = False) -> np.ndarray:
@@ -257,10 +209,8 @@ class _Grower:
         diffs, spread = quad_differences(self.sampler, points, u, v)
         diffs *= (parity * self.sign)[:, None]
         finite = np.isfinite(diffs)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            median = np.nanmedian(diffs, axis=1)
-            low, high = np.nanmin(diffs, axis=1), np.nanmax(diffs, axis=1)
+        median = _nanmedian_rows(diffs)
+        low, high = np.where(finite, diffs, np.inf).min(1), np.where(finite, diffs, -np.inf).max(1)
         ok = (finite.sum(1) >= 2) & (median > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
         if strict:
             ok &= (low > 0.4 * median) & (spread < 0.5 * median)
@@ -400,6 +350,19 @@ class _Grower:
         return rc - self.origin, self.idx[rc[:, 0], rc[:, 1]]
 
 
+def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
+    """Median along axis 1 ignoring NaN (NaN where a row has none): np.nanmedian without its slow
+    masked-array path, for the few values per row used here."""
+    ordered = np.sort(a, axis=1)  # NaNs sort last
+    finite = np.isfinite(ordered)
+    n = (finite if a.ndim == 2 else finite[..., 0]).sum(1)
+    rows = np.arange(len(a))
+    lo, hi = np.maximum((n - 1) // 2, 0), np.minimum(n // 2, a.shape[1] - 1)
+    median = (ordered[rows, lo] + ordered[rows, hi]) / 2
+    median[n == 0] = np.nan
+    return median
+
+
 def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
     """mask grown by `reach` cells in rows and columns (a square neighbourhood)."""
     out = mask.copy()
@@ -411,6 +374,80 @@ def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
         out[:, 1:] |= grown[:, :-1]
         out[:, :-1] |= grown[:, 1:]
     return out
+
+
+def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray,
+                  free: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A verified square at each seed corner, all seeds at once (neighbours (S, K): each seed's
+    nearest corners, nearest first; only free ones count).
+
+    A square is p, p + u, p + v and a fourth corner near p + u + v, with u, v from the seed's
+    SEED_NEIGHBOURS nearest free corners, whose four corners pass the image test; of the passing
+    bases the shortest is taken (the colour test cannot tell (u, v) from (u, v + 2u)). Returns
+    found (S,), corners (S, 4) ordered (0,0), (0,1), (1,0), (1,1) with u x v > 0 (+col, +row like
+    image +x, +y), the board's sign (S,) (+: quads of even row + col are light) and contrast (S,).
+    """
+    if len(seeds) > SEED_CHUNK:  # bounds the (seeds x pairs x neighbours) arrays
+        parts = [_seed_squares(xy, sampler, seeds[k : k + SEED_CHUNK], neighbours[k : k + SEED_CHUNK], free)
+                 for k in range(0, len(seeds), SEED_CHUNK)]
+        return tuple(np.concatenate(arrays) for arrays in zip(*parts))
+    n_seeds = len(seeds)
+    found = np.zeros(n_seeds, bool)
+    corners = np.zeros((n_seeds, 4), np.int64)
+    sign, contrast = np.zeros(n_seeds), np.zeros(n_seeds)
+    valid = free[neighbours]
+    order = np.argsort(~valid, axis=1, kind="stable")  # free neighbours first, nearest first
+    candidates = np.take_along_axis(neighbours, order, 1)
+    valid = np.take_along_axis(valid, order, 1)
+    nb, nb_valid = candidates[:, :SEED_NEIGHBOURS], valid[:, :SEED_NEIGHBOURS]
+    i, j = np.triu_indices(nb.shape[1], 1)
+    p = xy[seeds][:, None]  # (S, 1, 2)
+    u, v = xy[nb[:, i]] - p, xy[nb[:, j]] - p  # (S, P, 2)
+    lu, lv = np.linalg.norm(u, axis=2), np.linalg.norm(v, axis=2)
+    cross = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    ok = (nb_valid[:, i] & nb_valid[:, j] & (np.abs(cross) > 0.3 * lu * lv) & (lu < 5 * lv) & (lv < 5 * lu)
+          & (np.abs(cross) >= MIN_SQUARE_PX * np.maximum(lu, lv)))
+    flip = cross < 0
+    a, b = np.where(flip, nb[:, j], nb[:, i]), np.where(flip, nb[:, i], nb[:, j])
+    u, v = xy[a] - p, xy[b] - p
+    d = np.linalg.norm(xy[candidates][:, None] - (p + u + v)[:, :, None], axis=3)  # (S, P, K)
+    d[~np.broadcast_to(valid[:, None], d.shape)] = np.inf
+    nearest = d.argmin(2)
+    fourth = np.take_along_axis(candidates, nearest, 1)  # (S, P)
+    tol = TOLERANCE * np.minimum(np.linalg.norm(u, axis=2), np.linalg.norm(v, axis=2))
+    ok &= (np.take_along_axis(d, nearest[..., None], 2)[..., 0] < tol)
+    ok &= (fourth != seeds[:, None]) & (fourth != a) & (fourth != b)
+    si, pi = np.nonzero(ok)
+    if len(si) == 0:
+        return found, corners, sign, contrast
+    square = np.stack([seeds[si], a[si, pi], b[si, pi], fourth[si, pi]], 1)  # (G, 4)
+    uu, vv = u[si, pi], v[si, pi]
+    size = np.maximum(np.linalg.norm(uu, axis=1), np.linalg.norm(vv, axis=1))
+    by_size = np.lexsort((size, si))  # each seed's squares, shortest first
+    rank = np.empty(len(si), np.int64)
+    rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
+    passed = np.zeros(len(si), bool)
+    g_sign, g_contrast = np.zeros(len(si)), np.zeros(len(si))
+    first_round = rank < 3  # the image test is the costly part: the shortest squares first ...
+    for tested in (first_round, ~first_round & ~np.isin(si, si[passed])):  # ... the rest only if needed
+        t = np.nonzero(tested)[0]
+        if len(t) == 0:
+            continue
+        diffs, spread = quad_differences(sampler, xy[square[t].ravel()], np.repeat(uu[t], 4, 0), np.repeat(vv[t], 4, 0))
+        # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
+        diffs = (diffs.reshape(-1, 4, 4) * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
+        spread = spread.reshape(-1, 4).max(1)
+        g_sign[t] = np.sign(np.median(diffs, axis=1))
+        g_contrast[t] = np.median(diffs * g_sign[t][:, None], axis=1)
+        with np.errstate(invalid="ignore"):
+            passed[t] = ((g_sign[t] != 0) & (spread < 0.5 * g_contrast[t])
+                         & (np.min(diffs * g_sign[t][:, None], axis=1) > np.maximum(MIN_CONTRAST, 0.4 * g_contrast[t])))
+    best = by_size[passed[by_size]]  # passing squares by seed, shortest first
+    first = best[np.unique(si[best], return_index=True)[1]]
+    found[si[first]] = True
+    corners[si[first]] = square[first]
+    sign[si[first]], contrast[si[first]] = g_sign[first], g_contrast[first]
+    return found, corners, sign, contrast
 
 
 def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,
@@ -490,12 +527,23 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
     free = np.ones(n, bool)
     found, added = [], []
-    for s in seeds:
+    batch: dict[int, list] = {}  # seed -> its square, checked in growing batches of the free seeds
+    size = 4
+    for k, s in enumerate(seeds):
         if not free[s]:
             continue
-        grower = _Grower(xy, free, sampler, gray if complete else None, n + len(added))
-        if not grower.seed(int(s), neighbours[s]):
+        if s not in batch:
+            ahead = seeds[k:][free[seeds[k:]]][:size]
+            size = min(4 * size, SEED_CHUNK)  # the first seed usually finds the board, later ones rarely
+            squares = _seed_squares(xy, sampler, ahead, neighbours[ahead], free)
+            batch = {int(a): [part[i] for part in squares] for i, a in enumerate(ahead)}
+        square = batch[s]
+        if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
+            square = [part[0] for part in _seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free)]
+        if not square[0]:
             continue
+        grower = _Grower(xy, free, sampler, gray if complete else None, n + len(added))
+        grower.seed(square[1], float(square[2]), float(square[3]))
         grower.grow()
         grower.prune()
         grid, idx = grower.cells()
