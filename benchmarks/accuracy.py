@@ -129,10 +129,10 @@ def synthetic_cases(count: int, seed: int):
         yield "synthetic-no-board", f"empty-{seed + 10_000 + i}", scene.image, scene.corners, scene.ignore
 
 
-def evaluate(detector: ccdn.Detector, synthetic: int, seed: int) -> dict:
+def evaluate(detector: ccdn.Detector, synthetic: int, seed: int, real_dev: bool = True) -> dict:
     groups: dict[str, list[dict]] = defaultdict(list)
     per_image = []
-    if REAL_DEV.is_dir():
+    if real_dev and REAL_DEV.is_dir():
         for group, name, path, labels, sizes in real_dev_cases():
             result = detector.detect(path, boards=True)
             r = match(result.xy, labels)
@@ -140,7 +140,7 @@ def evaluate(detector: ccdn.Detector, synthetic: int, seed: int) -> dict:
             r["spurious_boards"] = max(0, len(result.boards) - len(sizes))
             groups[group].append(r)
             per_image.append({"group": group, "image": name, **{k: v for k, v in r.items() if k != "errors"}})
-    else:
+    elif real_dev:
         print(f"note: {REAL_DEV} not found; real-dev skipped", file=sys.stderr)
     for group, name, image, labels, ignore in synthetic_cases(synthetic, seed):
         r = match(detector.detect(image).xy, labels, ignore)
@@ -176,13 +176,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-coarse", action="store_true", help="always run the network at full resolution")
     parser.add_argument("--synthetic", type=int, default=60, help="number of renders (plus a third as many boardless)")
     parser.add_argument("--seed", type=int, default=5_000_000)
+    parser.add_argument("--no-real-dev", action="store_true", help="renders only (e.g. to choose between checkpoints)")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "accuracy.json")
     args = parser.parse_args(argv)
     detector = ccdn.Detector(args.model, args.threads, refinement=args.refinement, filter=args.filter,
                              coarse_to_fine=not args.no_coarse)
     t0 = time.time()
-    result = evaluate(detector, args.synthetic, args.seed)
+    result = evaluate(detector, args.synthetic, args.seed, real_dev=not args.no_real_dev)
     result["config"] = {"model": detector.model.name, "version": detector.model.version, "refinement": args.refinement,
                         "filter": args.filter, "coarse_to_fine": not args.no_coarse, "match_radius_px": MATCH_RADIUS, "seed": args.seed,
                         "machine": platform.processor() or platform.machine(), "seconds": round(time.time() - t0, 1)}

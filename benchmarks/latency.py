@@ -7,7 +7,7 @@ the median and the 10th/90th percentiles per stage. OpenCV's findChessboardCorne
 board size, runs on the same frames for comparison. Cold start (import + session + first detect)
 is timed in a fresh process; peak RSS is the process's high-water mark after each size.
 
-    python benchmarks/latency.py [--model paper] [--repeat 3] [--json out/latency.json]
+    python benchmarks/latency.py [--models paper fast] [--repeat 3] [--json out/latency.json]
 """
 
 from __future__ import annotations
@@ -86,9 +86,12 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+STAGES = ("load", "network", "peaks", "refine", "boards")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--model", default=None)
+    parser.add_argument("--models", nargs="+", default=[None], help="bundled model names or .onnx paths (default: the default model)")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--frames", type=int, default=12, help="how many real-dev photos to use")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
@@ -100,15 +103,17 @@ def main(argv: list[str] | None = None) -> None:
     board_sizes = [s for _, s in loaded]
     report = {"machine": {"cpu": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},
-              "cold_start_ms": cold_start(args.model) * 1e3, "runs": []}
+              "frames": len(loaded), "repeat": args.repeat,
+              "cold_start_ms": {str(m or "default"): cold_start(m) * 1e3 for m in args.models}, "runs": []}
     for w, h in SIZES:
         frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA if f.shape[1] > w else cv2.INTER_LINEAR)
                   for f, _ in loaded]
-        for threads in args.threads:
-            detector = ccdn.Detector(args.model, threads)
-            run = {"size": f"{w}x{h}", "threads": threads, "model": detector.model.name,
-                   "stages": time_detector(detector, frames, args.repeat)}
-            report["runs"].append(run)
+        for model in args.models:
+            for threads in args.threads:
+                detector = ccdn.Detector(model, threads)
+                run = {"size": f"{w}x{h}", "threads": threads, "model": detector.model.name,
+                       "stages": time_detector(detector, frames, args.repeat)}
+                report["runs"].append(run)
         if not args.no_opencv:
             cv2.setNumThreads(max(args.threads))
             report["runs"].append({"size": f"{w}x{h}", "threads": max(args.threads), "model": "opencv-findChessboardCornersSB",
@@ -121,16 +126,24 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def format_table(report: dict) -> str:
-    lines = [f"{'size':<11}{'thr':>4}  {'model':<32}{'total ms':>10}{'p10-p90':>15}{'load':>8}{'network':>9}{'post':>8}"]
+    """Per-stage medians per run, then each model's speed-up over findChessboardCornersSB."""
+    lines = [f"{'size':<11}{'thr':>4}  {'model':<30}{'total ms':>9}{'p10-p90':>14}" + "".join(f"{k:>9}" for k in STAGES)]
+    opencv = {r["size"]: r["stages"]["total"]["median_ms"] for r in report["runs"]
+              if r["model"].startswith("opencv") and r["stages"]}
+    ratios = []
     for run in report["runs"]:
         s = run["stages"]
         if s is None:
             continue
         t = s["total"]
-        stage = lambda k: f"{s[k]['median_ms']:>8.1f}" if k in s else f"{'-':>8}"  # noqa: E731
-        lines.append(f"{run['size']:<11}{run['threads']:>4}  {run['model']:<32}{t['median_ms']:>10.1f}"
-                     f"{t['p10_ms']:>7.1f}-{t['p90_ms']:<7.1f}{stage('load')}{stage('network'):>9}{stage('postprocess')}")
-    lines.append(f"cold start (import + session + first 640x480 detect): {report['cold_start_ms']:.0f} ms")
+        lines.append(f"{run['size']:<11}{run['threads']:>4}  {run['model']:<30}{t['median_ms']:>9.1f}"
+                     f"{t['p10_ms']:>7.1f}-{t['p90_ms']:<6.1f}"
+                     + "".join(f"{s[k]['median_ms']:>9.1f}" if k in s else f"{'-':>9}" for k in STAGES))
+        if run["size"] in opencv and not run["model"].startswith("opencv") and run["threads"] == max(r["threads"] for r in report["runs"]):
+            ratios.append(f"{run['model']} at {run['size']}, {run['threads']} threads: "
+                          f"{opencv[run['size']] / t['median_ms']:.1f}x faster than findChessboardCornersSB")
+    lines += ratios
+    lines += [f"cold start {m} (import + session + first 640x480 detect): {v:.0f} ms" for m, v in report["cold_start_ms"].items()]
     lines += [f"{k}: {v:.0f}" for k, v in report.items() if k.startswith("peak_rss")]
     return "\n".join(lines)
 

@@ -138,12 +138,12 @@ def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...
 
 
 def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):
-    """Only the corners that belong to a board, by descending score, boards re-indexed."""
+    """Only the corners that belong to a board, by descending score (ties by y, x), boards re-indexed."""
     member = np.zeros(len(xy), bool)
     for board in boards:
         member[board.corner_index] = True
     keep = np.nonzero(member)[0]
-    keep = keep[np.argsort(-values[keep], kind="stable")]
+    keep = keep[np.lexsort((xy[keep, 0], xy[keep, 1], -values[keep]))]
     new_index = np.empty(len(xy), np.int64)
     new_index[keep] = np.arange(len(keep))
     boards = tuple(dataclasses.replace(b, corner_index=new_index[b.corner_index]) for b in boards)

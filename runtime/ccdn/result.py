@@ -23,7 +23,10 @@ class Detection:
     """Corners found in one image.
 
     xy: (N, 2) float32, (x, y) sub-pixel positions; (0, 0) is the centre of the top-left pixel.
-    score: (N,) float32 confidence in [0, 1] (the network's score at the corner, clipped).
+    score: (N,) float32 confidence in [0, 1]: the network's response at the corner, clipped. Corners
+    the network found score at least the detector's threshold (max(relative x the image's best,
+    floor)); corners grid completion took from the image (see ccdn.grid) carry the network's lower
+    response there, so `score >= t` keeps only corners the network itself is that sure of.
     Corners are sorted by descending score, ties by (y, x); no corners gives arrays of length 0.
     image_size: (width, height) of the input; model: name and version of the model used.
     boards: the checkerboards the corners form (ccdn.grid.Board, indices into xy), largest first;
