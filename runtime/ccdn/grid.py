@@ -237,7 +237,7 @@ class _Grower:
         nearest = d.argmin(1)
         dist = d[np.arange(len(cells)), nearest]
         u, v = self._axes(cells)
-        ok = np.nonzero(dist < tol)[0]
+        ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
         if len(ok) == 0:
             return filled
         ok = ok[self._accepts(cells[ok], self.xy[free[nearest[ok]]], u[ok], v[ok])]
