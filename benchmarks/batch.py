@@ -89,7 +89,8 @@ def peak_memory(scratch: Path) -> list[dict]:
         cv2.imwrite(str(path), board_frame(width, height))
         for overlay in (False, True):
             out = scratch / f"mem-{width}-{overlay}"
-            wall, code, rss = run_measured(ccdn_command(str(path), "--out", str(out), "--overlay" if overlay else "--no-overlay"))
+            wall, code, rss = run_measured(ccdn_command(str(path), "--out", str(out), "--workers", "1",
+                                                        "--overlay" if overlay else "--no-overlay"))
             rows.append({"size": f"{width}x{height}", "megapixels": round(width * height / 1e6, 2), "overlay": overlay,
                          "peak_rss_mib": rss, "wall_s": round(wall, 2), "exit": code})
     return rows

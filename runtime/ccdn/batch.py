@@ -3,9 +3,11 @@
 - Inputs: files as given, folders searched recursively (hidden files and folders skipped, the output
   folder skipped, symlinked folders not followed), sorted by name: the output order is the input
   order whatever the number of workers, and the results are those of a serial run.
-- Workers: `workers=1` runs in this process with one multi-threaded Detector; `workers=N>1` starts N
-  processes, each with a Detector of `threads` (default 1) intra-op threads, so N workers use N
-  cores without oversubscription. Each worker holds one decoded image at a time.
+- Workers: `workers=1` runs in this process; `workers=N>1` starts N processes. Each worker has a
+  Detector of `threads` (default 1) intra-op threads, so N workers use N cores without
+  oversubscription: for throughput, processes beat threads, since peaks, refinement and grid
+  recovery run in Python on one core. `ccdn detect` defaults to one worker per available CPU
+  (default_workers). Each worker holds one decoded image at a time.
 - Resume: an image whose result is already recorded (its JSON file, or its record in the JSON Lines
   or CSV log) is skipped unless `force`. Outputs are written in an order that makes the result the
   commit: overlay first, then the JSON file (atomically) or the log record (whole, flushed).
@@ -73,6 +75,9 @@ class WorkerDied:
     reason: str
 
 
+MAX_DEFAULT_WORKERS = 8
+
+
 @dataclass(frozen=True)
 class BatchOptions:
     """Settings of a batch run (see the module docstring and `ccdn detect --help`)."""
@@ -85,6 +90,15 @@ class BatchOptions:
     threads: int | None = None
     model: str | os.PathLike | None = None
     max_pixels: int = DEFAULT_MAX_PIXELS
+
+
+def default_workers() -> int:
+    """One worker per CPU this process may run on, capped at MAX_DEFAULT_WORKERS."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, MAX_DEFAULT_WORKERS))
 
 
 def one_line(text: str) -> str:
@@ -156,7 +170,7 @@ class Batch:
         self.options = options
         in_process = options.workers == 1
         # The model is loaded here even for worker processes, so that a bad model fails up front.
-        detector = Detector(options.model, options.threads if in_process else 1, max_pixels=options.max_pixels)
+        detector = Detector(options.model, options.threads or 1 if in_process else 1, max_pixels=options.max_pixels)
         self._detector = detector if in_process else None
         options.out.mkdir(parents=True, exist_ok=True)
         self.log_name = LOG_FILES.get(options.format)  # None: one JSON file per image
@@ -190,7 +204,7 @@ class Batch:
         tasks = [(item, self.overlay_path(item) if o.overlay else None) for item in todo]
         pool = None
         if self._detector is None:
-            pool = ordered_map(_work, tasks, o.workers, _init_worker,
+            pool = ordered_map(_work, tasks, min(o.workers, max(len(tasks), 1)), _init_worker,
                                (o.model, o.threads or 1, o.max_pixels, os.getpid()))
         outcomes: Iterator[Outcome | WorkerDied] = pool or map(_Worker(self._detector), tasks)
         try:

@@ -31,12 +31,13 @@ def run_detect(args: argparse.Namespace) -> int:
     import cv2
     from tqdm import tqdm
 
-    from .batch import Batch, BatchOptions, collect_inputs
+    from .batch import Batch, BatchOptions, collect_inputs, default_workers
     from .image import DEFAULT_MAX_PIXELS
 
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # failures get their own reasons below
     overlay = args.format == "json" if args.overlay is None else args.overlay
-    options = BatchOptions(args.out, args.format, overlay, args.force, args.workers, args.threads, args.model,
+    workers = args.workers or default_workers()
+    options = BatchOptions(args.out, args.format, overlay, args.force, workers, args.threads, args.model,
                            args.max_pixels or DEFAULT_MAX_PIXELS)
     try:
         batch = Batch(options)
@@ -98,10 +99,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="take only files matching GLOB (repeatable; case-insensitive; matched against the file "
                         "name, or the path inside the folder if GLOB has a /). Default: known image suffixes")
     p.add_argument("--exclude", action="append", default=[], metavar="GLOB", help="skip files matching GLOB (repeatable)")
-    p.add_argument("--workers", type=positive_int, default=1, metavar="N",
-                   help="worker processes, each with its own detector (default 1: in this process)")
+    p.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                   help="worker processes, each with its own detector (default: one per CPU, capped at 8; "
+                        "1 runs in this process)")
     p.add_argument("--threads", type=positive_int, default=None, metavar="N",
-                   help="inference threads per worker (default: CPUs capped at 4 with one worker, 1 with several)")
+                   help="inference threads per worker (default 1: workers, not threads, use the cores)")
     p.add_argument("--max-pixels", type=positive_int, default=None, metavar="N",
                    help=f"refuse larger images, checked from the file header before decoding (default {MAX_PIXELS_HELP})")
     p.add_argument("--force", action="store_true", help="redo images that already have a result")
