@@ -150,3 +150,18 @@ def test_shipped_model_matches_pytorch_with_its_own_weights(examples):
     with torch.no_grad():
         ref = model(torch.from_numpy(x)).numpy()
     assert np.abs(session.run(None, {"image": x})[0] - ref).max() < 1e-4
+
+
+def test_banks_render_with_overrides_and_load_together(tmp_path):
+    """A bank of steep poses (SceneConfig overrides) and a plain one, drawn from together."""
+    from ccdn_training.bank import SceneBank, build_bank
+
+    build_bank(tmp_path / "plain.npz", 2, seed=0, workers=1)
+    build_bank(tmp_path / "steep.npz", 2, seed=10, workers=1, overrides={"min_tilt_deg": 60, "max_tilt_deg": 70,
+                                                                         "p_no_board": 0.0})
+    bank = SceneBank(tmp_path / "plain.npz", tmp_path / "steep.npz")
+    assert len(bank) == 4 and len(bank.corners) == len(bank.ignore) == 4
+    steep = render_scene(np.random.default_rng(10), SceneConfig(min_tilt_deg=60, max_tilt_deg=70, p_no_board=0.0))
+    np.testing.assert_array_equal(bank.images[2], steep.image)
+    xs, ys = bank.crops(np.random.default_rng(0), 8, 96)
+    assert xs.shape == ys.shape == (8, 96, 96) and (ys == 1).any()

@@ -7,7 +7,9 @@ training loop draws many crops of each, with rotations by 90 degrees and flips.
 from __future__ import annotations
 
 import argparse
+import json
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -15,15 +17,16 @@ import numpy as np
 from .synth import SceneConfig, render_scene
 
 
-def _render(seed: int):
-    scene = render_scene(np.random.default_rng(seed), SceneConfig())
+def _render(seed: int, overrides: dict):
+    scene = render_scene(np.random.default_rng(seed), SceneConfig(**overrides))
     return scene.image, scene.corners, scene.ignore
 
 
-def build_bank(path: Path, count: int, seed: int, workers: int) -> None:
-    """Render `count` scenes with seeds seed..seed+count-1 and save them to `path`."""
+def build_bank(path: Path, count: int, seed: int, workers: int, overrides: dict | None = None) -> None:
+    """Render `count` scenes with seeds seed..seed+count-1 (SceneConfig fields changed by
+    `overrides`, e.g. a bank of steep poses) and save them to `path`."""
     with ProcessPoolExecutor(workers) as pool:
-        scenes = list(pool.map(_render, range(seed, seed + count), chunksize=8))
+        scenes = list(pool.map(partial(_render, overrides=overrides or {}), range(seed, seed + count), chunksize=8))
     images = np.stack([s[0] for s in scenes])
     corners = [s[1] for s in scenes]
     ignore = [s[2] for s in scenes]
@@ -39,13 +42,17 @@ def build_bank(path: Path, count: int, seed: int, workers: int) -> None:
 
 
 class SceneBank:
-    """Scenes loaded from a bank file: images (N, H, W) uint8, per-scene corners and ignored corners."""
+    """Scenes loaded from one or more bank files: images (N, H, W) uint8, per-scene corners and
+    ignored corners."""
 
-    def __init__(self, path: Path) -> None:
-        data = np.load(path)
-        self.images = data["images"]
-        self.corners = np.split(data["corners"], np.cumsum(data["corner_counts"])[:-1])
-        self.ignore = np.split(data["ignore"], np.cumsum(data["ignore_counts"])[:-1])
+    def __init__(self, *paths: Path) -> None:
+        images, self.corners, self.ignore = [], [], []
+        for path in paths:
+            data = np.load(path)
+            images.append(data["images"])
+            self.corners += np.split(data["corners"], np.cumsum(data["corner_counts"])[:-1])
+            self.ignore += np.split(data["ignore"], np.cumsum(data["ignore_counts"])[:-1])
+        self.images = np.concatenate(images)
 
     def __len__(self) -> int:
         return len(self.images)
@@ -106,9 +113,11 @@ def main() -> None:
     parser.add_argument("--count", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--config", type=json.loads, default={},
+                        help='SceneConfig fields to change, as JSON, e.g. \'{"min_tilt_deg": 50, "max_tilt_deg": 78}\'')
     args = parser.parse_args()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    build_bank(args.out, args.count, args.seed, args.workers)
+    build_bank(args.out, args.count, args.seed, args.workers, args.config)
 
 
 if __name__ == "__main__":

@@ -105,11 +105,11 @@ def train(args: argparse.Namespace) -> None:
     recipe = {**RECIPES[args.recipe], "lr": args.lr or RECIPES[args.recipe]["lr"], "clip_grad": args.clip_grad,
               "recipe": args.recipe, "arch": args.arch, "batch": args.batch, "crop": args.crop,
               "sigma": args.sigma, "tau": args.tau, "weight_decay": args.weight_decay, "seed": args.seed,
-              "bank": str(args.bank), "steps": args.steps,
+              "bank": [str(b) for b in args.bank], "steps": args.steps,
               "init_from": str(args.init_from) if args.init_from else "paper N(0, 0.1) / 0.1"}
     (args.out / "recipe.json").write_text(json.dumps(recipe, indent=2))
 
-    bank = SceneBank(args.bank)
+    bank = SceneBank(*args.bank)
     val_bank = SceneBank(args.val_bank) if args.val_bank else None
     log = (args.out / "log.jsonl").open("a")
     t0, losses = time.time(), []
@@ -147,7 +147,8 @@ def train(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Train CCDN on rendered scenes (checkpoints in --out; --resume continues).")
-    parser.add_argument("--bank", type=Path, required=True, help="training scenes (.npz from ccdn-render-bank)")
+    parser.add_argument("--bank", type=Path, nargs="+", required=True,
+                        help="training scenes (.npz files from ccdn-render-bank, drawn from together)")
     parser.add_argument("--val-bank", type=Path, help="validation scenes (.npz)")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--recipe", choices=sorted(RECIPES), default="adam")
