@@ -37,6 +37,7 @@ import cv2
 
 from .detector import Detector
 from .image import DEFAULT_MAX_PIXELS, ImageError
+from .session import available_cpus
 from .writers import CsvLog, JsonlLog, ResultLog, remove_stale_temps, result_record, write_json, write_overlay
 
 log = logging.getLogger(__name__)
@@ -94,11 +95,7 @@ class BatchOptions:
 
 def default_workers() -> int:
     """One worker per CPU this process may run on, capped at MAX_DEFAULT_WORKERS."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cpus = os.cpu_count() or 1
-    return max(1, min(cpus, MAX_DEFAULT_WORKERS))
+    return min(available_cpus(), MAX_DEFAULT_WORKERS)
 
 
 def one_line(text: str) -> str:
@@ -170,7 +167,7 @@ class Batch:
         self.options = options
         in_process = options.workers == 1
         # The model is loaded here even for worker processes, so that a bad model fails up front.
-        detector = Detector(options.model, options.threads or 1 if in_process else 1, max_pixels=options.max_pixels)
+        detector = Detector(options.model, options.threads or 1, max_pixels=options.max_pixels)
         self._detector = detector if in_process else None
         options.out.mkdir(parents=True, exist_ok=True)
         self.log_name = LOG_FILES.get(options.format)  # None: one JSON file per image

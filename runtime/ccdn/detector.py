@@ -103,7 +103,8 @@ class Detector:
         clock.lap("peaks")
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
         radius = window_for_spacing(_median_spacing(start)) if len(start) > 1 else 3
-        refined, ok = refine(gray, start, self.refinement, 2.0 * scale, radius, wide=max(3 * scale - 1, radius + 2) if scale > 1 else 0)
+        wide = max(3 * scale - 1, radius + 2) if scale > 1 else 0  # peaks of a shrunk frame are rough starts
+        refined, ok = refine(gray, start, self.refinement, 2.0 * scale, radius, wide)
         refined, values = refined[ok], values[ok]
         distinct = suppress(refined, radius=1.0)  # refinement can move two peaks onto one corner
         refined, values = refined[distinct], values[distinct]
@@ -131,10 +132,10 @@ def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...
         new = board.corner_index >= len(xy)
         extra[board.corner_index[new] - len(xy)] = board.xy[new]
     h, w = score.shape
-    near = cv2.dilate(score, np.ones((3, 3), np.uint8))
-    col = np.clip(np.rint((extra[:, 0] + 0.5) / scale - 0.5), 0, w - 1).astype(np.int64)
-    row = np.clip(np.rint((extra[:, 1] + 0.5) / scale - 0.5), 0, h - 1).astype(np.int64)
-    return np.concatenate([xy, extra]), np.concatenate([values, near[row, col]]).astype(np.float32)
+    col = np.rint((extra[:, 0] + 0.5) / scale - 0.5).astype(np.int64)[:, None] + np.array([-1, 0, 1] * 3)
+    row = np.rint((extra[:, 1] + 0.5) / scale - 0.5).astype(np.int64)[:, None] + np.repeat([-1, 0, 1], 3)
+    near = score[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)].max(1)  # the 3x3 pixels around each
+    return np.concatenate([xy, extra]), np.concatenate([values, near]).astype(np.float32)
 
 
 def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):

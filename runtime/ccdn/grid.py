@@ -50,6 +50,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from .checker import MIN_CONTRAST, Sampler, quad_differences, x_like
@@ -122,12 +123,7 @@ class _Grower:
         """Start the grid from a verified square (_seed_squares): corners (0,0), (0,1), (1,0), (1,1)."""
         self.sign = sign  # + : quads of even row + col are light
         self.threshold = max(MIN_CONTRAST, RELATIVE_CONTRAST * contrast)
-        for rc, idx in zip(((0, 0), (0, 1), (1, 0), (1, 1)), corners):
-            self._add(rc, int(idx))
-
-    def _add(self, rc: tuple[int, int], idx: int) -> None:
-        """Seed placement: one corner at grid position rc."""
-        self._place(np.array([rc]), np.array([idx]))
+        self._place(np.array([(0, 0), (0, 1), (1, 0), (1, 1)]), np.asarray(corners, np.int64))
 
     # --- the lattice canvas: positions of the grid cells, NaN where empty -------------------------
 
@@ -160,10 +156,9 @@ class _Grower:
         self.pos[rc[:, 0], rc[:, 1]] = np.array([self.point(i) for i in idx]).reshape(-1, 2)
         given = idx[idx < len(self.free)]
         self.free[given] = False
-        near = np.zeros(self.idx.shape, bool)  # failed positions near a change may pass now
-        near[rc[:, 0], rc[:, 1]] = True
-        near = _dilate(near, _REACH)
-        self.stale &= ~near
+        near = np.zeros(self.idx.shape, np.uint8)  # failed positions near a change may pass now
+        near[rc[:, 0], rc[:, 1]] = 1
+        self.stale &= cv2.dilate(near, np.ones((2 * _REACH + 1,) * 2, np.uint8)) == 0
         self._ensure_margin()
 
     def _gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -219,16 +214,13 @@ class _Grower:
     def _frontier(self) -> np.ndarray:
         """Empty canvas cells next to a filled one along a row or column, (K, 2)."""
         filled = self.idx >= 0
-        near = np.zeros_like(filled)
-        near[1:] |= filled[:-1]
-        near[:-1] |= filled[1:]
-        near[:, 1:] |= filled[:, :-1]
-        near[:, :-1] |= filled[:, 1:]
-        return np.argwhere(near & ~filled)
+        return np.argwhere((_row_col_neighbours(filled) > 0) & ~filled)
 
-    def _take(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray) -> np.ndarray:
-        """Fill cells with the free corners nearest their predictions that pass the image test (one
-        corner per cell, the nearest cell wins a contested corner); (K,) which were filled."""
+    def _take(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray, u: np.ndarray,
+              v: np.ndarray) -> np.ndarray:
+        """Fill cells with the free corners nearest their predictions that pass the image test with
+        lattice steps u, v (one corner per cell, the nearest cell wins a contested corner); (K,)
+        which were filled."""
         filled = np.zeros(len(cells), bool)
         free = np.nonzero(self.free)[0]
         if len(free) == 0 or len(cells) == 0:
@@ -236,7 +228,6 @@ class _Grower:
         d = np.linalg.norm(preds[:, None] - self.xy[free][None], axis=2)
         nearest = d.argmin(1)
         dist = d[np.arange(len(cells)), nearest]
-        u, v = self._axes(cells)
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
         if len(ok) == 0:
             return filled
@@ -296,11 +287,11 @@ class _Grower:
         while True:
             cells = self._frontier()
             cells = cells[~self.stale[cells[:, 0], cells[:, 1]]]
-            preds, tol, _, _ = self._support(cells)
+            preds, tol, u, v = self._support(cells)
             known = np.isfinite(tol)
             filled = np.zeros(len(cells), bool)
             origin = self.origin.copy()
-            filled[known] = self._take(cells[known], preds[known], tol[known])
+            filled[known] = self._take(cells[known], preds[known], tol[known], u[known], v[known])
             failed = cells[~filled] + (self.origin - origin)  # the canvas may have grown
             self.stale[failed[:, 0], failed[:, 1]] = True
             if filled.any() or self._jump_holes() or (self.gray is not None and self._complete()):
@@ -325,20 +316,15 @@ class _Grower:
         targets, preds, tols = np.concatenate(targets), np.concatenate(preds), np.concatenate(tols)
         if len(targets) == 0:
             return False
-        _, first = np.unique(targets, axis=0, return_index=True)
-        first = np.sort(first)
-        return bool(self._take(targets[first], preds[first], tols[first]).any())
+        first = np.sort(np.unique(targets, axis=0, return_index=True)[1])
+        targets = targets[first]
+        return bool(self._take(targets, preds[first], tols[first], *self._axes(targets)).any())
 
     def prune(self) -> None:
         """Drop corners with fewer than 2 row/column neighbours: lone points on a board's outline."""
         while True:
             filled = self.idx >= 0
-            count = np.zeros(filled.shape, np.int64)
-            count[1:] += filled[:-1]
-            count[:-1] += filled[1:]
-            count[:, 1:] += filled[:, :-1]
-            count[:, :-1] += filled[:, 1:]
-            weak = filled & (count < 2)
+            weak = filled & (_row_col_neighbours(filled) < 2)
             if not weak.any():
                 return
             self.idx[weak] = -1
@@ -363,17 +349,14 @@ def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
     return median
 
 
-def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
-    """mask grown by `reach` cells in rows and columns (a square neighbourhood)."""
-    out = mask.copy()
-    for _ in range(reach):
-        grown = out.copy()
-        grown[1:] |= out[:-1]
-        grown[:-1] |= out[1:]
-        out = grown.copy()
-        out[:, 1:] |= grown[:, :-1]
-        out[:, :-1] |= grown[:, 1:]
-    return out
+def _row_col_neighbours(filled: np.ndarray) -> np.ndarray:
+    """How many of each cell's 4 row/column neighbours are filled."""
+    count = np.zeros(filled.shape, np.int64)
+    count[1:] += filled[:-1]
+    count[:-1] += filled[1:]
+    count[:, 1:] += filled[:, :-1]
+    count[:, :-1] += filled[:, 1:]
+    return count
 
 
 def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray,

@@ -20,13 +20,17 @@ STRIP_PIXELS = 1 << 20  # frames above this run in horizontal strips of about th
 DEFAULT_RECEPTIVE_RADIUS = 16  # for models whose metadata does not say
 
 
-def default_threads() -> int:
-    """Physical cores are not visible portably; use the CPUs this process may run on, capped."""
+def available_cpus() -> int:
+    """The CPUs this process may run on (physical cores are not visible portably)."""
     try:
-        cpus = len(os.sched_getaffinity(0))
+        return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
-        cpus = os.cpu_count() or 1
-    return max(1, min(cpus, MAX_DEFAULT_THREADS))
+        return os.cpu_count() or 1
+
+
+def default_threads() -> int:
+    """Intra-op threads by default: the available CPUs, capped."""
+    return min(available_cpus(), MAX_DEFAULT_THREADS)
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """The networks: the paper's CCDN (section 2.1, 6 convs, 16301 parameters) and FastCCDN, a cheaper
-shape for the default model.
+shape for the same job (shipped as the `fast` model).
 
 Each describes itself as a list of layers (`layers()`), which the ONNX exporter writes node by node.
 """

@@ -102,7 +102,8 @@ def train(args: argparse.Namespace) -> None:
         rng.bit_generator.state = state["rng"]
         step, best_f1 = state["step"], state["best_f1"]
         print(f"resumed at step {step}", flush=True)
-    recipe = {**RECIPES[args.recipe], "lr": args.lr or RECIPES[args.recipe]["lr"], "clip_grad": args.clip_grad,
+    lr0 = args.lr or RECIPES[args.recipe]["lr"]
+    recipe = {**RECIPES[args.recipe], "lr": lr0, "clip_grad": args.clip_grad,
               "recipe": args.recipe, "arch": args.arch, "batch": args.batch, "crop": args.crop,
               "sigma": args.sigma, "tau": args.tau, "weight_decay": args.weight_decay, "seed": args.seed,
               "bank": [str(b) for b in args.bank], "steps": args.steps,
@@ -114,7 +115,7 @@ def train(args: argparse.Namespace) -> None:
     log = (args.out / "log.jsonl").open("a")
     t0, losses = time.time(), []
     while step < args.steps:
-        lr = staircase_lr(step, args.lr or RECIPES[args.recipe]["lr"], args.sigma, args.tau)
+        lr = staircase_lr(step, lr0, args.sigma, args.tau)
         for group in optimizer.param_groups:
             group["lr"] = lr
         xs, ys = bank.crops(rng, args.batch, args.crop)
