@@ -390,21 +390,21 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     cross = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
     ok = (nb_valid[:, i] & nb_valid[:, j] & (np.abs(cross) > 0.3 * lu * lv) & (lu < 5 * lv) & (lv < 5 * lu)
           & (np.abs(cross) >= MIN_SQUARE_PX * np.maximum(lu, lv)))
-    flip = cross < 0
-    a, b = np.where(flip, nb[:, j], nb[:, i]), np.where(flip, nb[:, i], nb[:, j])
-    u, v = xy[a] - p, xy[b] - p
-    d = np.linalg.norm(xy[candidates][:, None] - (p + u + v)[:, :, None], axis=3)  # (S, P, K)
-    d[~np.broadcast_to(valid[:, None], d.shape)] = np.inf
-    nearest = d.argmin(2)
-    fourth = np.take_along_axis(candidates, nearest, 1)  # (S, P)
-    tol = TOLERANCE * np.minimum(np.linalg.norm(u, axis=2), np.linalg.norm(v, axis=2))
-    ok &= (np.take_along_axis(d, nearest[..., None], 2)[..., 0] < tol)
-    ok &= (fourth != seeds[:, None]) & (fourth != a) & (fourth != b)
-    si, pi = np.nonzero(ok)
+    si, pi = np.nonzero(ok)  # the fourth corner is sought for the plausible pairs only
+    flip = cross[si, pi] < 0
+    a = np.where(flip, nb[si, j[pi]], nb[si, i[pi]])
+    b = np.where(flip, nb[si, i[pi]], nb[si, j[pi]])
+    uu, vv = xy[a] - xy[seeds[si]], xy[b] - xy[seeds[si]]
+    offsets = xy[candidates[si]] - (xy[seeds[si]] + uu + vv)[:, None]  # (G, K, 2)
+    d2 = np.where(valid[si], offsets[..., 0] ** 2 + offsets[..., 1] ** 2, np.inf)
+    nearest = d2.argmin(1)
+    fourth = candidates[si, nearest]
+    tol = TOLERANCE * np.minimum(lu[si, pi], lv[si, pi])
+    keep = ((d2[np.arange(len(si)), nearest] < tol**2) & (fourth != seeds[si]) & (fourth != a) & (fourth != b))
+    si, a, b, fourth, uu, vv = si[keep], a[keep], b[keep], fourth[keep], uu[keep], vv[keep]
     if len(si) == 0:
         return found, corners, sign, contrast
-    square = np.stack([seeds[si], a[si, pi], b[si, pi], fourth[si, pi]], 1)  # (G, 4)
-    uu, vv = u[si, pi], v[si, pi]
+    square = np.stack([seeds[si], a, b, fourth], 1)  # (G, 4)
     size = np.maximum(np.linalg.norm(uu, axis=1), np.linalg.norm(vv, axis=1))
     by_size = np.lexsort((size, si))  # each seed's squares, shortest first
     rank = np.empty(len(si), np.int64)
@@ -414,12 +414,18 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     first_round = rank < 3  # the image test is the costly part: the shortest squares first ...
     for tested in (first_round, ~first_round & ~np.isin(si, si[passed])):  # ... the rest only if needed
         t = np.nonzero(tested)[0]
+        # the seed corner alone first: passing needs its 4 quad pairs to differ one way by MIN_CONTRAST
+        seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t])
+        alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
+        t, seed_diffs, seed_spread = t[alternating], seed_diffs[alternating], seed_spread[alternating]
         if len(t) == 0:
             continue
-        diffs, spread = quad_differences(sampler, xy[square[t].ravel()], np.repeat(uu[t], 4, 0), np.repeat(vv[t], 4, 0))
+        diffs, spread = quad_differences(sampler, xy[square[t, 1:].ravel()], np.repeat(uu[t], 3, 0),
+                                         np.repeat(vv[t], 3, 0))
+        diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
-        diffs = (diffs.reshape(-1, 4, 4) * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
-        spread = spread.reshape(-1, 4).max(1)
+        diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
+        spread = np.maximum(seed_spread, spread.reshape(-1, 3).max(1))
         g_sign[t] = np.sign(np.median(diffs, axis=1))
         g_contrast[t] = np.median(diffs * g_sign[t][:, None], axis=1)
         with np.errstate(invalid="ignore"):

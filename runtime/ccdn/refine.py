@@ -16,6 +16,8 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
@@ -30,15 +32,20 @@ def window_for_spacing(spacing: float) -> int:
     return int(np.clip(round(spacing / 10), 3, 6))
 
 
+@lru_cache(maxsize=16)
 def _fit_matrix(radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Offsets of a (2r+1)^2 patch and the pseudo-inverse of its quadric design matrix."""
+    """Offsets of a (2r+1)^2 patch and the pseudo-inverse of its quadric design matrix (cached:
+    it depends on the radius only; read-only)."""
     oy, ox = np.mgrid[-radius : radius + 1, -radius : radius + 1]
     ox, oy = ox.ravel().astype(np.float64), oy.ravel().astype(np.float64)
     sigma = radius  # weight the centre more: the quadric only models the corner's neighbourhood
     w = np.exp(-(ox**2 + oy**2) / (2 * sigma**2))
     design = np.stack([ox * ox, ox * oy, oy * oy, ox, oy, np.ones_like(ox)], 1)
     pinv = np.linalg.pinv(design * w[:, None]) * w[None, :]
-    return ox.astype(np.int64), oy.astype(np.int64), pinv
+    arrays = ox.astype(np.int64), oy.astype(np.int64), pinv
+    for a in arrays:
+        a.setflags(write=False)
+    return arrays
 
 
 def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigma: float = 1.2,

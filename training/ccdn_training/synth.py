@@ -289,8 +289,8 @@ def _blur_and_light(img: np.ndarray, rng: np.random.Generator, cfg: SceneConfig)
         kernel = np.zeros((2 * r + 1, 2 * r + 1), np.float32)
         cv2.circle(kernel, (r, r), r, 1.0, -1)
         img = cv2.filter2D(img, -1, kernel / kernel.sum())
-    if rng.random() < cfg.p_motion:
-        n = int(rng.integers(3, 10))
+    if rng.random() < cfg.p_motion:  # odd lengths: an even kernel's anchor would shift the image half a pixel
+        n = 2 * int(rng.integers(1, 5)) + 1
         kernel = np.zeros((n, n), np.float32)
         kernel[n // 2, :] = 1.0
         rot = cv2.getRotationMatrix2D(((n - 1) / 2, (n - 1) / 2), rng.uniform(0, 180), 1.0)
