@@ -206,7 +206,7 @@ class _Grower:
         finite = np.isfinite(diffs)
         median = _nanmedian_rows(diffs)
         low, high = np.where(finite, diffs, np.inf).min(1), np.where(finite, diffs, -np.inf).max(1)
-        ok = (finite.sum(1) >= 2) & (median > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
+        ok = (finite.sum(1) >= 1) & (median > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
         if strict:
             ok &= (low > 0.4 * median) & (spread < 0.5 * median)
         return ok
