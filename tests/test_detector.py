@@ -81,13 +81,15 @@ def test_paper_model_is_bundled():
     assert "paper" in ccdn.available_models()
 
 
+@pytest.mark.parametrize("model", ["fast", "paper-int8"])
 @pytest.mark.parametrize("name", ["board", "fisheye", "two-boards"])
-def test_fast_model_finds_every_corner_of_the_examples_and_nothing_else(examples, name):
+def test_other_bundled_models_find_every_corner_of_the_examples_and_nothing_else(examples, name, model):
     ex = examples[name]
-    result = ccdn.Detector("fast", threads=2).detect(ex["path"])
+    detector = ccdn.Detector(model, threads=2)
+    result = detector.detect(ex["path"])
     d = nearest_distances(result.xy, ex["corners"])
     assert len(result) == len(ex["corners"]) and d.max() < 0.3
-    assert len(ccdn.Detector("fast", threads=2).detect(examples["no-board"]["path"])) == 0
+    assert len(detector.detect(examples["no-board"]["path"])) == 0
 
 
 def test_finds_most_corners_of_a_real_photo(detector, real_dev):

@@ -181,3 +181,22 @@ def test_banks_render_with_overrides_and_load_together(tmp_path):
     np.testing.assert_array_equal(bank.images[2], steep.image)
     xs, ys = bank.crops(np.random.default_rng(0), 8, 96)
     assert xs.shape == ys.shape == (8, 96, 96) and (ys == 1).any()
+
+
+def test_int8_model_scores_like_its_fp32_source(tmp_path, examples):
+    """Quantising the shipped paper net (calibrated on a few renders) keeps its score map and asks
+    the runtime for the optimisation level that runs it as integer kernels."""
+    import cv2
+
+    import ccdn
+    from ccdn.models import model_path
+    from ccdn_training.quantize import quantize
+
+    quantize(model_path("paper"), tmp_path / "q.onnx", "q", count=4)
+    int8 = ccdn.Detector(tmp_path / "q.onnx", threads=1)
+    assert int8.model.metadata["graph_optimization"] == "all"
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    ref = ccdn.Detector("paper", threads=1).scores(gray)
+    got = int8.scores(gray)
+    assert np.corrcoef(ref.ravel(), got.ravel())[0, 1] > 0.98
+    assert np.abs(got - ref).max() < 0.15 * ref.max()

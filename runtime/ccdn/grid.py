@@ -106,9 +106,10 @@ class _Grower:
     """Grows one board from a seed square over the free corners."""
 
     def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.ndarray | None = None,
-                 first_added: int = 0) -> None:
+                 first_added: int = 0, occupied: np.ndarray | None = None) -> None:
         self.xy, self.free, self.sampler = xy, free.copy(), sampler
         self.gray = gray  # given: complete the grid from the image (module docstring)
+        self.occupied = np.zeros((0, 2)) if occupied is None else occupied  # earlier boards' corners
         self.first_added = first_added  # index of this grower's first added corner
         self.added: list[np.ndarray] = []
         self.pos = self.idx = self.stale = self.tried = self.origin = None  # the canvas, made by _place
@@ -258,7 +259,7 @@ class _Grower:
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
         good[good] &= self._accepts(cells[good], points[good], u[good], v[good], strict=True)
-        taken = self.pos[self.idx >= 0]
+        taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
         if len(taken):
             good &= np.linalg.norm(points[:, None] - taken[None], axis=2).min(1) >= tol
         keep = []
@@ -531,7 +532,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
             square = [part[0] for part in _seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free)]
         if not square[0]:
             continue
-        grower = _Grower(xy, free, sampler, gray if complete else None, n + len(added))
+        occupied = np.concatenate([xy[~free], np.reshape(added, (-1, 2))])
+        grower = _Grower(xy, free, sampler, gray if complete else None, n + len(added), occupied)
         grower.seed(square[1], float(square[2]), float(square[3]))
         grower.grow()
         grower.prune()

@@ -37,10 +37,15 @@ def quantize(source: Path, out: Path, name: str, count: int = 32, seed: int = 80
         staged = Path(tmp) / "int8.onnx"
         quantize_static(str(source), str(staged), RenderReader(count, seed), quant_format=QuantFormat.QDQ,
                         per_channel=True, activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
-                        calibrate_method=CalibrationMethod.MinMax)
+                        calibrate_method=CalibrationMethod.MinMax, reduce_range=True)
         proto = onnx.load(str(staged))
     meta = {p.key: p.value for p in onnx.load(str(source)).metadata_props}
-    meta.update(name=name, quantization=f"static int8 QDQ, per-channel weights, MinMax on {count} renders (seeds {seed}+)")
+    # onnxruntime fuses QDQ pairs into integer kernels only at its ALL level (measured on the paper
+    # net at 640x480: 31 ms there, 95 ms at EXTENDED, 60 ms for fp32)
+    meta.update(name=name, graph_optimization="all",
+                quantization=f"static int8 QDQ, per-channel 7-bit weights (reduce_range: no int16 saturation "
+                             f"on CPUs without VNNI, so every CPU computes the same), MinMax on {count} renders "
+                             f"(seeds {seed}+)")
     del proto.metadata_props[:]
     helper.set_model_props(proto, meta)
     onnx.checker.check_model(proto)
