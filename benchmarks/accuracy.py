@@ -85,6 +85,8 @@ def summarise(rows: list[dict]) -> dict:
         "recall": hits / labels if labels else None,
         **({"boards_recovered": sum(r["board_recovered"] for r in rows),
             "spurious_boards": sum(r["spurious_boards"] for r in rows)} if rows and "board_recovered" in rows[0] else {}),
+        **({"boards": sum(r["boards"] for r in rows), "wrong_index_boards": sum(r["wrong_index_boards"] for r in rows)}
+           if rows and "wrong_index_boards" in rows[0] else {}),
     }
 
 

@@ -22,11 +22,14 @@ BoardSize = tuple[int, int]
 
 @dataclass(frozen=True)
 class Adapter:
-    """A named detector: `detect(gray HxW uint8, board_size)` -> (N, 2) float64 (x, y); `note` says how it runs."""
+    """A named detector: `detect(gray HxW uint8, board_size)` -> (N, 2) float64 (x, y); `note` says how it runs.
+    `boards` (detectors that index their corners): the last detect's boards as (grid (M, 2) row, col;
+    xy (M, 2)) pairs."""
 
     name: str
     detect: Callable[[np.ndarray, BoardSize], np.ndarray]
     note: str
+    boards: Callable[[], list[tuple[np.ndarray, np.ndarray]]] | None = None
 
 
 def ccdn_adapter(model: str | os.PathLike | None, threads: int | None) -> Adapter:
@@ -34,8 +37,14 @@ def ccdn_adapter(model: str | os.PathLike | None, threads: int | None) -> Adapte
     import ccdn
 
     detector = ccdn.Detector(model, threads)
-    return Adapter("ccdn", lambda gray, size: detector.detect(gray).xy.astype(np.float64),
-                   f"model {detector.model.name} {detector.model.version}, {detector.threads} threads")
+    last: list = [None]
+
+    def detect(gray: np.ndarray, size: BoardSize) -> np.ndarray:
+        last[0] = detector.detect(gray)
+        return last[0].xy.astype(np.float64)
+
+    return Adapter("ccdn", detect, f"model {detector.model.name} {detector.model.version}, {detector.threads} threads",
+                   lambda: [(b.grid, b.xy.astype(np.float64)) for b in last[0].boards])
 
 
 def opencv_adapter(threads: int | None) -> Adapter:

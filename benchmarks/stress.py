@@ -18,7 +18,9 @@ All detectors (benchmarks/peers.py) run on the same images in one run. Metrics a
 (benchmarks/accuracy.py, 5 px radius), with the renderer's ignored corners (occluded, at the border)
 counted neither way. Where two corners are closer than 10 px (small squares, steep tilt) the radius
 shrinks to half their distance (so >= 1.5 px): one detection can then hit one corner only. Times are
-per image, median over the subset, after one warm-up call.
+per image, median over the subset, after one warm-up call. For detectors that index their corners
+(ccdn's boards) the run also counts boards whose (row, col) disagree with the render's grid: a
+wrongly indexed board silently corrupts a calibration.
 
     python benchmarks/stress.py [--per-subset 20] [--subsets clean noise] [--detectors ccdn opencv]
 """
@@ -39,7 +41,7 @@ from ccdn_training.synth import PAPER_BOARDS, Scene, SceneConfig, render_scene
 from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).parent))
-from accuracy import MATCH_RADIUS, format_table, match, summarise  # noqa: E402
+from accuracy import MATCH_RADIUS, SYMMETRIES, format_table, match, summarise  # noqa: E402
 from peers import DETECTORS, Adapter, BoardSize, load_adapters  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,6 +137,24 @@ def render_subset(name: str, count: int) -> tuple[list[tuple[int, Scene]], int]:
     raise RuntimeError(f"subset {name}: only {len(kept)} of {count} scenes in its {SEEDS_PER_SUBSET} seeds")
 
 
+def wrongly_indexed(boards: list[tuple[np.ndarray, np.ndarray]], scene: Scene, radius: float) -> tuple[int, int]:
+    """(boards checked, boards whose (row, col) disagree with the render's): a board's corners that
+    hit labels must lie on one true board and map to its grid by one of the 8 symmetries plus an
+    offset, as on real-dev (accuracy.board_recovered); boards hitting fewer than 4 labels are skipped."""
+    checked = wrong = 0
+    for grid, xy in boards:
+        d = np.linalg.norm(xy[:, None] - scene.corners[None], axis=2)
+        hit = d.min(1) < radius
+        if hit.sum() < 4:
+            continue
+        label = d.argmin(1)[hit]
+        true = scene.grid[label]
+        consistent = len(set(scene.board_index[label])) == 1 and any(
+            (lambda off: (off == off[0]).all())(grid[hit] - true @ m.T) for m in SYMMETRIES)
+        checked, wrong = checked + 1, wrong + (not consistent)
+    return checked, wrong
+
+
 def opencv_size(scene: Scene, fallback: BoardSize) -> BoardSize:
     """The true size of the scene's most visible board (OpenCV needs one), or `fallback` without a board."""
     if not scene.boards:
@@ -168,6 +188,8 @@ def evaluate(sets: dict[str, list[tuple[int, Scene]]], adapters: list[Adapter], 
                 xy = adapter.detect(scene.image, opencv_size(scene, fallback))
                 times.append((time.perf_counter() - t0) * 1e3)
                 rows.append(match(xy, scene.corners, scene.ignore, radius))
+                if adapter.boards is not None:
+                    rows[-1]["boards"], rows[-1]["wrong_index_boards"] = wrongly_indexed(adapter.boards(), scene, radius)
                 per_image.append({"subset": name, "seed": seed, "detector": adapter.name, "ms": times[-1],
                                   "radius_px": radius, **{k: v for k, v in rows[-1].items() if k != "errors"}})
                 bar.update()
@@ -191,6 +213,12 @@ def format_results(result: dict) -> str:
     lines[0] += f"{'ms':>8}"
     lines[1] += "-" * 8
     lines[2:] = [line + f"{s['median_ms']:>8.1f}" for line, s in zip(lines[2:], rows.values())]
+    for det, s in result["all"].items():
+        if "wrong_index_boards" in s:
+            where = ", ".join(f"{name} {sub['detectors'][det]['wrong_index_boards']}"
+                              for name, sub in result["subsets"].items() if sub["detectors"][det]["wrong_index_boards"])
+            lines.append(f"{det} boards with wrong (row, col): {s['wrong_index_boards']} of {s['boards']}"
+                         + (f" ({where})" if where else ""))
     return "\n".join(lines)
 
 

@@ -10,6 +10,7 @@ from functools import lru_cache
 from itertools import islice
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -158,6 +159,37 @@ def test_points_on_a_plain_grid_of_lines_form_no_board():
     yy, xx = np.mgrid[20:220:20, 20:300:20]
     xy = np.column_stack([xx.ravel(), yy.ravel()]).astype(np.float32)
     assert find_boards(image, xy, np.ones(len(xy))) == ()
+
+
+def sheared_board(u: tuple[float, float], v: tuple[float, float], squares: tuple[int, int] = (8, 7)):
+    """A board whose square steps in the image are u and v (an affine view), drawn 4x supersampled
+    on a light background; returns the image and its inner corners (row-major) with (row, col)."""
+    origin, ss = np.array([30.0, 20.0]), 4
+    to_board = np.linalg.inv(np.column_stack([u, v]))
+    yy, xx = (np.mgrid[0 : 240 * ss, 0 : 320 * ss] + 0.5) / ss - 0.5
+    c, r = np.einsum("ij,jhw->ihw", to_board, np.stack([xx, yy]) - origin[:, None, None])
+    inside = (c >= 0) & (c < squares[0]) & (r >= 0) & (r < squares[1])
+    dark = inside & ((np.floor(c) + np.floor(r)) % 2 == 0)
+    big = np.where(dark, 40.0, 210.0).astype(np.float32)
+    image = cv2.resize(big, (320, 240), interpolation=cv2.INTER_AREA).astype(np.uint8)
+    grid = np.array([(r, c) for r in range(1, squares[1]) for c in range(1, squares[0])])
+    corners = origin + grid[:, 1:2] * np.array(u) + grid[:, 0:1] * np.array(v)
+    return image, corners.astype(np.float32), grid
+
+
+@pytest.mark.parametrize("u, v, whole", [((14.0, 0.0), (24.0, 9.0), True), ((14.0, 2.0), (25.0, 11.0), False)])
+def test_a_strongly_sheared_board_never_gets_a_shorter_lattice(u, v, whole):
+    """Steep views shear a board so that v - 2u is shorter than v, and the basis (u, v - 2u) passes
+    the colour test like (u, v) (its quad centres are square centres too): the seed's wider
+    uniformity samples must reject it, or every row's indices shift by 2 columns. In the second
+    view v is not among a corner's 12 nearest, so no seed can form the true square: no board is
+    then the right answer, never a wrongly indexed one."""
+    image, corners, grid = sheared_board(u, v)
+    boards = find_boards(image, corners, np.ones(len(corners)))
+    assert all(index_map(board, grid[board.corner_index]) is not None for board in boards)
+    if whole:
+        assert len(boards) == 1 and len(boards[0]) == len(corners)
+        assert sorted((boards[0].cols, boards[0].rows)) == [6, 7]
 
 
 def test_board_size_prior_keeps_that_size_transposes_it_and_rejects_others():

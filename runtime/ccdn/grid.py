@@ -5,8 +5,10 @@ corner (on a small ring around it the grey level alternates twice: the ring's se
 harmonic beats its first, as it does not at an edge or a T-junction), then at most 200 others (a
 cheap filter that keeps clutter from costing a seed attempt per point). A seed is a corner p with
 two neighbours p + u, p + v whose sum p + u + v is also a corner (one square of the lattice) and
-whose four corners pass the image test below, with uniform grey inside each sampled quad (a wrong
-lattice samples edges); of the passing bases the shortest is taken. The board then grows position
+whose four corners pass the image test below, with uniform grey inside each sampled quad, sampled
+out to a quarter of its diagonals (a wrong lattice samples edges; a sheared one such as (u, v + 2u),
+whose quad centres are square centres too, reaches into other squares); of the passing bases the
+shortest is taken. The board then grows position
 by position: each empty neighbour of the grid is predicted from the grid (along a row or column
 from the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms
 with diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of
@@ -65,6 +67,8 @@ MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 TOLERANCE = 0.3  # of the shorter local lattice step
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
 RELATIVE_CONTRAST = 0.2  # of the seed's median contrast
+SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's diagonals) from their centres:
+# a basis (u, v + 2u) passes the colour test like (u, v), but its quads reach into other squares
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
@@ -416,13 +420,13 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     for tested in (first_round, ~first_round & ~np.isin(si, si[passed])):  # ... the rest only if needed
         t = np.nonzero(tested)[0]
         # the seed corner alone first: passing needs its 4 quad pairs to differ one way by MIN_CONTRAST
-        seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t])
+        seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM)
         alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
         t, seed_diffs, seed_spread = t[alternating], seed_diffs[alternating], seed_spread[alternating]
         if len(t) == 0:
             continue
         diffs, spread = quad_differences(sampler, xy[square[t, 1:].ravel()], np.repeat(uu[t], 3, 0),
-                                         np.repeat(vv[t], 3, 0))
+                                         np.repeat(vv[t], 3, 0), SEED_REACH_UNIFORM)
         diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
