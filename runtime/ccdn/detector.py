@@ -31,7 +31,7 @@ COARSE_MIN_SQUARE = 12.0  # px at half size: smaller squares go to the full-reso
 class Detector:
     """Checkerboard inner-corner detector around one onnxruntime CPU session.
 
-    model: a bundled model's name (default "paper") or a path to an .onnx file.
+    model: a bundled model's name (default: ccdn.models.DEFAULT_MODEL, "paper-int8") or a path to an .onnx file.
     threads: intra-op threads (default: available CPUs, capped at 4). spinning: False keeps idle
     threads from busy-waiting, for apps that share the CPU.
     relative, floor: keep score peaks >= max(relative * max score, floor) (paper: relative 0.5).
@@ -177,7 +177,7 @@ _default: Detector | None = None
 
 
 def detect(image: ImageInput) -> Detection:
-    """Detect with a cached default Detector (the "paper" model, default settings)."""
+    """Detect with a cached default Detector (the default model and settings)."""
     global _default
     if _default is None:
         _default = Detector()
