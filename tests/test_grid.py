@@ -192,6 +192,19 @@ def test_a_strongly_sheared_board_never_gets_a_shorter_lattice(u, v, whole):
         assert sorted((boards[0].cols, boards[0].rows)) == [6, 7]
 
 
+def test_midpoints_of_a_thin_line_mesh_form_no_board():
+    """The midpoints of a mesh's line segments are saddles on a diagonal lattice whose 'quads' are a
+    light cell and a dark crossing; sampled along the lines' directions the crossing looks like a
+    dark square, so the seed also samples along the lattice steps, which leave the thin lines."""
+    image = np.full((240, 320), 200, np.uint8)
+    image[20:220:8, 20:300] = 40
+    image[20:220, 20:300:8] = 40
+    image = cv2.GaussianBlur(image, (0, 0), 0.6)
+    yy, xx = np.mgrid[20:212:8, 20:292:8]
+    mid = np.concatenate([np.column_stack([xx.ravel() + 4, yy.ravel()]), np.column_stack([xx.ravel(), yy.ravel() + 4])])
+    assert find_boards(image, mid.astype(np.float32), np.ones(len(mid))) == ()
+
+
 def test_board_size_prior_keeps_that_size_transposes_it_and_rejects_others():
     (scene,) = whole_boards(1, board_sizes=((9, 6),))
     xy, score = scene.corners, np.ones(len(scene.corners))

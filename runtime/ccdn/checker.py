@@ -37,35 +37,40 @@ class Sampler:
         return np.where(self.contains(points), total / ((x1 - x0) * (y1 - y0)), np.nan)
 
 
-def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray,
-                     reach: float = 0.125) -> tuple[np.ndarray, np.ndarray]:
+def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, reach: float = 0.125,
+                     axes: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Grey-level contrast and uniformity of the 4 quads around corners p (K, 2), lattice steps u, v.
 
     Returns (diffs, spread): diffs (K, 4) is own-parity minus other-parity quad (each the median of
-    5 samples: centre and centre +- reach (u +- v)) over the 4 edge-adjacent pairs (the quad at
+    5 samples: centre and centre +- reach (u +- v); with axes > 0 also centre +- axes u and +- axes v,
+    9 in all) over the 4 edge-adjacent pairs (the quad at
     +u/2 +v/2 shares the corner's row + col parity), positive when the corner's own-parity quads are
     light; spread (K,) is the largest range of the 5 samples within one quad, small when they sit
     inside squares, large when a wrong lattice puts them on edges or in other squares (a larger
-    reach tells more lattices apart, a smaller one tolerates more distortion). A quad centre off
-    the image is sampled halfway to it.
+    reach tells more lattices apart, a smaller one tolerates more distortion; the axis samples catch
+    a grid of thin lines, whose crossings look like dark quads along the lines' directions only). A
+    quad centre off the image is sampled halfway to it.
     """
     p = np.atleast_2d(p)
     u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
     cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
     longest = np.maximum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
     radius = np.floor(0.12 * cross / np.maximum(longest, 1e-9)).astype(np.int64)  # well inside a square
-    offsets = reach * np.stack([np.zeros_like(u), u + v, -(u + v), u - v, v - u])  # (5, K, 2)
+    offsets = reach * np.stack([np.zeros_like(u), u + v, -(u + v), u - v, v - u])  # (S, K, 2)
+    if axes > 0:
+        offsets = np.concatenate([offsets, axes * np.stack([u, -u, v, -v])])
+    n = len(offsets)
     signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)[:, None, :, None]  # (4 quads, 1, 2, 1)
     step = signs[:, :, 0] * u[None] + signs[:, :, 1] * v[None]  # (4, K, 2)
     centre = p[None] + step / 2
     off = ~sampler.contains(centre.reshape(-1, 2)).reshape(4, -1)
     centre[off] = (p[None] + step / 4)[off]
-    points = (centre[:, None] + offsets[None]).reshape(-1, 2)  # (4 quads, 5 samples, K) flattened
-    samples = sampler.mean(points, np.tile(radius, 20)).reshape(4, 5, -1)
+    points = (centre[:, None] + offsets[None]).reshape(-1, 2)  # (4 quads, S samples, K) flattened
+    samples = sampler.mean(points, np.tile(radius, 4 * n)).reshape(4, n, -1)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN quads (off the image) stay NaN
         spread = np.nanmax(np.nanmax(samples, 1) - np.nanmin(samples, 1), 0)
-    pp, pm, mp, mm = np.sort(samples, axis=1)[:, 2]  # median of the 5
+    pp, pm, mp, mm = np.sort(samples, axis=1)[:, n // 2]  # the median sample
     return np.stack([pp - pm, pp - mp, mm - pm, mm - mp], 1), spread
 
 

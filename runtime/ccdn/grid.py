@@ -69,6 +69,7 @@ MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres c
 RELATIVE_CONTRAST = 0.2  # of the seed's median contrast
 SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's diagonals) from their centres:
 # a basis (u, v + 2u) passes the colour test like (u, v), but its quads reach into other squares
+SEED_AXES = 0.35  # ... and this far along each lattice step: a grid of thin lines passes the diagonal samples
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
@@ -420,13 +421,13 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     for tested in (first_round, ~first_round & ~np.isin(si, si[passed])):  # ... the rest only if needed
         t = np.nonzero(tested)[0]
         # the seed corner alone first: passing needs its 4 quad pairs to differ one way by MIN_CONTRAST
-        seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM)
+        seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM, SEED_AXES)
         alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
         t, seed_diffs, seed_spread = t[alternating], seed_diffs[alternating], seed_spread[alternating]
         if len(t) == 0:
             continue
         diffs, spread = quad_differences(sampler, xy[square[t, 1:].ravel()], np.repeat(uu[t], 3, 0),
-                                         np.repeat(vv[t], 3, 0), SEED_REACH_UNIFORM)
+                                         np.repeat(vv[t], 3, 0), SEED_REACH_UNIFORM, SEED_AXES)
         diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
