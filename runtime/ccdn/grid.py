@@ -69,7 +69,7 @@ MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres c
 RELATIVE_CONTRAST = 0.2  # of the seed's median contrast
 SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's diagonals) from their centres:
 # a basis (u, v + 2u) passes the colour test like (u, v), but its quads reach into other squares
-SEED_AXES = 0.35  # ... and this far along each lattice step: a grid of thin lines passes the diagonal samples
+SEED_AXES = 0.3  # ... and this far along each lattice step: a grid of thin lines passes the diagonal samples
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
