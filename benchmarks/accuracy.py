@@ -115,7 +115,11 @@ def board_recovered(result: ccdn.Detection, labels: np.ndarray, cols: int, rows:
     if hit.sum() < 4:
         return False
     true = np.column_stack(np.divmod(d.argmin(1)[hit], cols))
-    found = board.grid[hit]
+    return same_indexing(board.grid[hit], true)
+
+
+def same_indexing(found: np.ndarray, true: np.ndarray) -> bool:
+    """Whether found (M, 2) (row, col) = one of the board's 8 symmetries of true (M, 2) + one offset."""
     return any((lambda off: (off == off[0]).all())(found - true @ m.T) for m in SYMMETRIES)
 
 

@@ -41,7 +41,7 @@ from ccdn_training.synth import PAPER_BOARDS, Scene, SceneConfig, render_scene
 from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).parent))
-from accuracy import MATCH_RADIUS, SYMMETRIES, format_table, match, summarise  # noqa: E402
+from accuracy import MATCH_RADIUS, format_table, match, same_indexing, summarise  # noqa: E402
 from peers import DETECTORS, Adapter, BoardSize, load_adapters  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -149,8 +149,7 @@ def wrongly_indexed(boards: list[tuple[np.ndarray, np.ndarray]], scene: Scene, r
             continue
         label = d.argmin(1)[hit]
         true = scene.grid[label]
-        consistent = len(set(scene.board_index[label])) == 1 and any(
-            (lambda off: (off == off[0]).all())(grid[hit] - true @ m.T) for m in SYMMETRIES)
+        consistent = len(set(scene.board_index[label])) == 1 and same_indexing(grid[hit], true)
         checked, wrong = checked + 1, wrong + (not consistent)
     return checked, wrong
 
