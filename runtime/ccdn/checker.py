@@ -45,7 +45,7 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     5 samples: centre and centre +- reach (u +- v); with axes > 0 also centre +- axes u and +- axes v,
     9 in all) over the 4 edge-adjacent pairs (the quad at
     +u/2 +v/2 shares the corner's row + col parity), positive when the corner's own-parity quads are
-    light; spread (K,) is the largest range of the 5 samples within one quad, small when they sit
+    light; spread (K,) is the largest range of the samples within one quad, small when they sit
     inside squares, large when a wrong lattice puts them on edges or in other squares (a larger
     reach tells more lattices apart, a smaller one tolerates more distortion; the axis samples catch
     a grid of thin lines, whose crossings look like dark quads along the lines' directions only). A

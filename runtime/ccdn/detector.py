@@ -55,9 +55,9 @@ class Detector:
         self._session = ScoreSession(model, threads, spinning)
         self.model = self._session.info
         self.threads = self._session.threads
-        grid = filter == "grid"
-        self.relative = relative if relative is not None else GRID_THRESHOLD[0] if grid else PAPER_THRESHOLD[0]
-        self.floor = floor if floor is not None else GRID_THRESHOLD[1] if grid else PAPER_THRESHOLD[1]
+        default_relative, default_floor = GRID_THRESHOLD if filter == "grid" else PAPER_THRESHOLD
+        self.relative = default_relative if relative is None else relative
+        self.floor = default_floor if floor is None else floor
         self.filter = filter
         self.refinement = refinement
         self.coarse_to_fine = coarse_to_fine

@@ -6,7 +6,7 @@ import os
 from importlib import resources
 from pathlib import Path
 
-DEFAULT_MODEL = "paper-int8"  # the paper net quantised: same figures, 1.5x faster (models/paper-int8.md)
+DEFAULT_MODEL = "paper-int8"  # the paper net quantised: same figures, ~1.6x faster end to end (models/paper-int8.md)
 
 
 class ModelError(ValueError):

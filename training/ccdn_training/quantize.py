@@ -41,7 +41,7 @@ def quantize(source: Path, out: Path, name: str, count: int = 32, seed: int = 80
         proto = onnx.load(str(staged))
     meta = {p.key: p.value for p in onnx.load(str(source)).metadata_props}
     # onnxruntime fuses QDQ pairs into integer kernels only at its ALL level (measured on the paper
-    # net at 640x480: 31 ms there, 95 ms at EXTENDED, 60 ms for fp32)
+    # net at 640x480, network only: 32 ms there, 95 ms at EXTENDED, 62 ms for fp32)
     meta.update(name=name, graph_optimization="all",
                 quantization=f"static int8 QDQ, per-channel 7-bit weights (reduce_range: no int16 saturation "
                              f"on CPUs without VNNI, so every CPU computes the same), MinMax on {count} renders "
