@@ -48,7 +48,7 @@ def test_loss_normalises_positives_and_negatives_separately():
     target[0, 0, 0, 0] = 1
     target[0, 0, 3, 3] = -1  # ignored
     expected = -np.log(0.5) - np.log(0.5) + 0.5 * 0.01 * sum(float((p.detach() ** 2).sum()) for p in model.parameters())
-    assert float(ccdn_loss(score, target, model)) == pytest.approx(expected, rel=1e-5)
+    assert float(ccdn_loss(score, target, model).detach()) == pytest.approx(expected, rel=1e-5)
 
 
 def test_a_dead_output_still_gets_a_gradient_towards_the_corner():
@@ -195,8 +195,29 @@ def test_int8_model_scores_like_its_fp32_source(tmp_path, examples):
     quantize(model_path("paper"), tmp_path / "q.onnx", "q", count=4)
     int8 = ccdn.Detector(tmp_path / "q.onnx", threads=1)
     assert int8.model.metadata["graph_optimization"] == "all"
+    assert int8.model.metadata["disabled_optimizers"] == "QDQPropagationTransformer"
     gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
     ref = ccdn.Detector("paper", threads=1).scores(gray)
     got = int8.scores(gray)
     assert np.corrcoef(ref.ravel(), got.ravel())[0, 1] > 0.98
     assert np.abs(got - ref).max() < 0.15 * ref.max()
+
+
+def test_widened_last_conv_scores_like_the_original(tmp_path, examples):
+    """The int8 layout's rewrite of a one-channel last conv (16 filters, 15 zero, then channel 0
+    sliced out) is exact in float32."""
+    import cv2
+    import onnx
+
+    import ccdn
+    from ccdn.models import model_path
+    from ccdn_training.quantize import GEMM_COLUMNS, widen_single_output_conv
+
+    proto = onnx.load(str(model_path("paper")))
+    widen_single_output_conv(proto)
+    assert any(n.op_type == "Slice" for n in proto.graph.node)
+    assert [i.dims[0] for i in proto.graph.initializer if len(i.dims) == 4] == [20] * 5 + [GEMM_COLUMNS]
+    onnx.save(proto, str(tmp_path / "wide.onnx"))
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    ref = ccdn.Detector("paper", threads=1).scores(gray)
+    np.testing.assert_allclose(ccdn.Detector(tmp_path / "wide.onnx", threads=1).scores(gray), ref, atol=1e-5)

@@ -6,8 +6,6 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; points are (x, y).
 
 from __future__ import annotations
 
-import warnings
-
 import cv2
 import numpy as np
 
@@ -19,6 +17,7 @@ class Sampler:
 
     def __init__(self, gray: np.ndarray) -> None:
         self.integral = cv2.integral(gray, sdepth=cv2.CV_64F)
+        self._flat = self.integral.ravel()  # gathered by flat index: cheaper than 2-D fancy indexing
         self.height, self.width = gray.shape
 
     def contains(self, points: np.ndarray) -> np.ndarray:
@@ -29,12 +28,15 @@ class Sampler:
         """Mean over the (2 radius + 1)^2 box around each point (K, 2); radius (K,) int."""
         xi = np.rint(points[:, 0]).astype(np.int64)
         yi = np.rint(points[:, 1]).astype(np.int64)
-        w1, h1 = self.width - 1, self.height - 1
+        w1, h1, stride = self.width - 1, self.height - 1, self.width + 1
+        # np.minimum / np.maximum: np.clip's Python wrapper costs more than the work on these sizes
         x0, x1 = np.minimum(np.maximum(xi - radius, 0), w1), np.minimum(np.maximum(xi + radius, 0), w1) + 1
-        y0, y1 = np.minimum(np.maximum(yi - radius, 0), h1), np.minimum(np.maximum(yi + radius, 0), h1) + 1
-        s = self.integral
-        total = s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0]
-        return np.where(self.contains(points), total / ((x1 - x0) * (y1 - y0)), np.nan)
+        y0 = np.minimum(np.maximum(yi - radius, 0), h1) * stride
+        y1 = (np.minimum(np.maximum(yi + radius, 0), h1) + 1) * stride
+        s = self._flat
+        total = s.take(y1 + x1) - s.take(y0 + x1) - s.take(y1 + x0) + s.take(y0 + x0)
+        inside = (xi >= 0) & (yi >= 0) & (xi <= w1) & (yi <= h1)
+        return np.where(inside, total / ((x1 - x0) * (y1 - y0) // stride), np.nan)
 
 
 def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, reach: float = 0.125,
@@ -54,7 +56,7 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     p = np.atleast_2d(p)
     u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
     cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
-    longest = np.maximum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
+    longest = np.maximum(np.hypot(u[:, 0], u[:, 1]), np.hypot(v[:, 0], v[:, 1]))
     radius = np.floor(0.12 * cross / np.maximum(longest, 1e-9)).astype(np.int64)  # well inside a square
     offsets = reach * np.stack([np.zeros_like(u), u + v, -(u + v), u - v, v - u])  # (S, K, 2)
     if axes > 0:
@@ -67,11 +69,16 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     centre[off] = (p[None] + step / 4)[off]
     points = (centre[:, None] + offsets[None]).reshape(-1, 2)  # (4 quads, S samples, K) flattened
     samples = sampler.mean(points, np.tile(radius, 4 * n)).reshape(4, n, -1)
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN quads (off the image) stay NaN
-        spread = np.nanmax(np.nanmax(samples, 1) - np.nanmin(samples, 1), 0)
+    # fmax / fmin skip NaN samples (off the image) without nanmax's warnings; all-NaN stays NaN
+    spread = np.fmax.reduce(np.fmax.reduce(samples, 1) - np.fmin.reduce(samples, 1), 0)
     pp, pm, mp, mm = np.sort(samples, axis=1)[:, n // 2]  # the median sample
     return np.stack([pp - pm, pp - mp, mm - pm, mm - mp], 1), spread
+
+
+_RING_ANGLES = np.arange(16) * (2 * np.pi / 16)
+_RING_COS, _RING_SIN = np.cos(_RING_ANGLES), np.sin(_RING_ANGLES)
+_RING_HARMONICS = np.stack([np.cos(_RING_ANGLES), np.sin(_RING_ANGLES), np.cos(2 * _RING_ANGLES),
+                            np.sin(2 * _RING_ANGLES)], 1)  # (16, 4); zero-mean, so the ring's mean drops out
 
 
 def x_like(gray: np.ndarray, xy: np.ndarray, spacing: np.ndarray) -> np.ndarray:
@@ -79,10 +86,10 @@ def x_like(gray: np.ndarray, xy: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     its neighbours, 1.5..15 px) alternates twice like at a checker corner: 2nd angular harmonic
     above the 1st and above MIN_CONTRAST."""
     radius = np.clip(0.3 * spacing, 1.5, 15.0)
-    theta = np.arange(16) * (2 * np.pi / 16)
-    mx = (xy[:, :1] + radius[:, None] * np.cos(theta)).astype(np.float32)
-    my = (xy[:, 1:] + radius[:, None] * np.sin(theta)).astype(np.float32)
+    mx = (xy[:, :1] + radius[:, None] * _RING_COS).astype(np.float32)
+    my = (xy[:, 1:] + radius[:, None] * _RING_SIN).astype(np.float32)
     ring = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
-    ring -= ring.mean(1, keepdims=True)
-    first, second = (np.abs(ring @ np.exp(1j * k * theta)) / 8 for k in (1, 2))
+    harmonics = ring @ _RING_HARMONICS / 8  # (N, 4): cos, sin parts of the 1st and 2nd harmonic
+    first, second = np.hypot(harmonics[:, 0], harmonics[:, 1]), np.hypot(harmonics[:, 2], harmonics[:, 3])
     return (second > first) & (second > MIN_CONTRAST)
+

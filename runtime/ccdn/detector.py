@@ -15,7 +15,7 @@ import time
 import cv2
 import numpy as np
 
-from .grid import Board, find_boards
+from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .peaks import find_peaks, kmeans_outliers, suppress
 from .refine import refine, window_for_spacing
@@ -162,10 +162,7 @@ def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board,
 def _median_spacing(xy: np.ndarray) -> float:
     """Median distance from each of the (first 512) corners to its nearest neighbour: about one
     square side on a board."""
-    xy = xy[:512]
-    d = np.linalg.norm(xy[:, None] - xy[None], axis=2)
-    np.fill_diagonal(d, np.inf)
-    return float(np.median(d.min(1)))
+    return float(np.median(np.sqrt(nearest_neighbours(xy[:512].astype(np.float64), 1)[1])))
 
 
 class _Clock:

@@ -120,7 +120,7 @@ def _fit(smooth: np.ndarray, centre: np.ndarray, quadric: _Quadric, min_saddle: 
     h, w = smooth.shape
     mx, my = centre[:, 0:1] + quadric.ox[None], centre[:, 1:2] + quadric.oy[None]
     if centre.dtype.kind == "i":
-        values = smooth[np.clip(my, 0, h - 1), np.clip(mx, 0, w - 1)]
+        values = smooth[np.minimum(np.maximum(my, 0), h - 1), np.minimum(np.maximum(mx, 0), w - 1)]
     else:
         values = cv2.remap(smooth, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_REPLICATE)

@@ -18,6 +18,9 @@ STRIP_PIXELS = 1 << 20  # frames above this run in horizontal strips of about th
 # paper net), so the stitched map equals the whole-frame map while the network's memory (some 20
 # float32 maps per pixel) stays bounded for any frame size
 DEFAULT_RECEPTIVE_RADIUS = 16  # for models whose metadata does not say
+OPTIMIZATION_LEVELS = {"basic": ort.GraphOptimizationLevel.ORT_ENABLE_BASIC,
+                       "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED,
+                       "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL}
 
 
 def available_cpus() -> int:
@@ -44,11 +47,20 @@ class ModelInfo:
     metadata: dict[str, str]
 
 
-def _load(path: Path, options: ort.SessionOptions) -> ort.InferenceSession:
+def _load(path: Path, options: ort.SessionOptions, disabled_optimizers: list[str] | None = None) -> ort.InferenceSession:
     try:
-        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"],
+                                    disabled_optimizers=disabled_optimizers)
     except Exception as exc:  # onnxruntime raises its own exception types for bad models
         raise ModelError(f"{path}: onnxruntime cannot load it ({exc})") from exc
+
+
+def _metadata(path: Path) -> dict[str, str]:
+    """The model's metadata_props, read by an unoptimised session (cheap for these small graphs)."""
+    options = ort.SessionOptions()
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    options.log_severity_level = 3
+    return dict(_load(path, options).get_modelmeta().custom_metadata_map)
 
 
 class ScoreSession:
@@ -59,21 +71,21 @@ class ScoreSession:
 
     def __init__(self, model: str | os.PathLike | None = None, threads: int | None = None, spinning: bool = True) -> None:
         path = model_path(model)
+        meta = _metadata(path)
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads or default_threads()
         options.inter_op_num_threads = 1
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED
+        # ALL lays convs out in blocks of 16 channels and fuses QDQ pairs into integer kernels: the
+        # int8 models ask for it; the paper net's 20-channel fp32 convs are slower there (measured)
+        options.graph_optimization_level = OPTIMIZATION_LEVELS.get(meta.get("graph_optimization", ""),
+                                                                   ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED)
         options.log_severity_level = 3
         if not spinning:
             options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        self._session = _load(path, options)
-        meta = dict(self._session.get_modelmeta().custom_metadata_map)
-        if meta.get("graph_optimization") == "all":
-            # ALL lays convs out in blocks of 16 channels: faster for models built for it (their
-            # metadata says so), slower for the paper net's 20 channels (measured)
-            options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-            self._session = _load(path, options)
+        # e.g. the int8 models keep their first pool in float32 and name the transformer that would undo it
+        disabled = [name for name in meta.get("disabled_optimizers", "").split(",") if name]
+        self._session = _load(path, options, disabled or None)
         preprocessing = meta.get("preprocessing")
         if preprocessing not in KNOWN_PREPROCESSING:
             raise ModelError(f"{path}: unknown preprocessing {preprocessing!r}; this runtime knows {sorted(KNOWN_PREPROCESSING)}")
