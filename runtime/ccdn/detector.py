@@ -1,5 +1,9 @@
 """The Detector: image -> network -> peaks -> outlier filter -> refinement -> boards, built once.
 
+Refinement is the saddle fit (ccdn.refine); on noisy frames (ccdn.edges.image_noise >= NOISY_SIGMA
+grey levels) the corners of the boards found are then moved onto their edge lines (ccdn.edges),
+which averages the noise over whole edges.
+
 Large frames go coarse-to-fine: the network first runs on the frame halved (a quarter of the
 pixels); when that finds a board whose squares are big enough to be seen at half size, its corners
 are refined on the full-resolution image and the full-size pass is skipped; otherwise (small
@@ -15,6 +19,7 @@ import time
 import cv2
 import numpy as np
 
+from .edges import NOISY_SIGMA, image_noise, lattice_steps, refine_on_edges
 from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .peaks import find_peaks, kmeans_outliers, suppress
@@ -126,6 +131,9 @@ class Detector:
             if complete or board_size is not None:
                 refined, values, found = _keep_board_corners(refined, values, found)
             clock.lap("boards")
+            if complete and found and self.refinement == "saddle" and image_noise(gray) >= NOISY_SIGMA:
+                refined, found = _refined_on_edges(gray, refined, found)
+                clock.lap("edges")
         return refined, values, found
 
 
@@ -144,6 +152,19 @@ def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...
     row = np.rint((extra[:, 1] + 0.5) / scale - 0.5).astype(np.int64)[:, None] + np.repeat([-1, 0, 1], 3)
     near = score[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)].max(1)  # the 3x3 pixels around each
     return np.concatenate([xy, extra]), np.concatenate([values, near]).astype(np.float32)
+
+
+def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...]):
+    """xy and boards with each board's corners refined on their edge lines (ccdn.edges: noisy frames)."""
+    xy = xy.copy()
+    refined = []
+    for board in boards:
+        moved_xy, moved = refine_on_edges(gray, board.xy, lattice_steps(board))
+        xy[board.corner_index[moved]] = moved_xy[moved]
+        board_xy = np.where(moved[:, None], moved_xy, board.xy)
+        board_xy.setflags(write=False)
+        refined.append(dataclasses.replace(board, xy=board_xy))
+    return xy, tuple(refined)
 
 
 def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):

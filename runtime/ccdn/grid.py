@@ -197,7 +197,7 @@ class _Grower:
         line = np.where(np.isfinite(p3), 3 * p1 - 3 * p2 + p3, 2 * p1 - p2)
         line = np.where(np.isfinite(p2), line, 1.5 * p1 - 0.5 * p3)
         diagonal = p[:, 12:16] + p[:, 16:20] - p[:, 20:24]
-        return _nanmedian_rows(np.concatenate([line, diagonal], 1))
+        return nanmedian_rows(np.concatenate([line, diagonal], 1))
 
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
                  strict: bool = False) -> np.ndarray:
@@ -210,7 +210,7 @@ class _Grower:
         diffs, spread = quad_differences(self.sampler, points, u, v)
         diffs *= (parity * self.sign)[:, None]
         finite = np.isfinite(diffs)
-        median = _nanmedian_rows(diffs)
+        median = nanmedian_rows(diffs)
         low, high = np.where(finite, diffs, np.inf).min(1), np.where(finite, diffs, -np.inf).max(1)
         ok = (finite.sum(1) >= 1) & (median > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
         if strict:
@@ -342,7 +342,7 @@ class _Grower:
         return rc - self.origin, self.idx[rc[:, 0], rc[:, 1]]
 
 
-def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
+def nanmedian_rows(a: np.ndarray) -> np.ndarray:
     """Median along axis 1 ignoring NaN (NaN where a row has none): np.nanmedian without its slow
     masked-array path, for the few values per row used here."""
     ordered = np.sort(a, axis=1)  # NaNs sort last

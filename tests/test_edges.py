@@ -1,0 +1,70 @@
+"""Edge-line refinement and the noise estimate that switches it on, on renders with exact labels."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import ccdn
+from ccdn.edges import NOISY_SIGMA, image_noise, lattice_steps
+
+
+def _calm_scene(seed: int, noise: float):
+    from ccdn_training.synth import SceneConfig, render_scene
+
+    cfg = SceneConfig(p_no_board=0, p_two_boards=0, p_occluder=0, p_blur=0, p_motion=0, p_defocus=0,
+                      p_noise=1.0 if noise else 0.0, noise_sigma=(noise, noise), p_jpeg=0, p_glare=0, p_shadow=0,
+                      p_dark=0, p_low_contrast=0, square_px=(18, 30), max_tilt_deg=30, p_radial=0, p_fisheye=0)
+    return render_scene(np.random.default_rng(seed), cfg)
+
+
+def _errors(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(found[:, None].astype(np.float64) - truth[None], axis=2).min(1)
+
+
+def test_image_noise_reads_the_added_noise(examples):
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    assert image_noise(gray) < 2.0
+    noisy = np.clip(gray + np.random.default_rng(0).normal(0, 12, gray.shape), 0, 255).astype(np.uint8)
+    assert image_noise(noisy) == pytest.approx(12, rel=0.15)
+    assert image_noise(np.zeros((2, 2), np.uint8)) == 0.0
+
+
+def test_edge_lines_beat_the_saddle_fit_in_heavy_noise(detector, monkeypatch):
+    """On noisy renders (18 grey levels) the detector moves board corners to their edge lines, which
+    land closer to the exact corners than the saddle fit it returns with the edge stage off."""
+    scenes = [_calm_scene(seed, 0.07) for seed in (3, 4, 5)]
+    assert all(image_noise(scene.image) >= NOISY_SIGMA for scene in scenes)
+    with_edges = [detector.detect(scene.image) for scene in scenes]
+    assert all("edges" in found.timings_ms for found in with_edges)
+    monkeypatch.setattr("ccdn.detector.NOISY_SIGMA", np.inf)
+    without = [detector.detect(scene.image) for scene in scenes]
+    assert all("edges" not in found.timings_ms for found in without)
+    on = np.concatenate([_errors(found.xy, scene.corners) for found, scene in zip(with_edges, scenes)])
+    off = np.concatenate([_errors(found.xy, scene.corners) for found, scene in zip(without, scenes)])
+    assert len(on) == len(off) > 100
+    hits = (on < 1.5) & (off < 1.5)  # detections of labelled corners (not ones the renderer ignores)
+    assert hits.mean() > 0.95
+    assert on[hits].mean() < 0.8 * off[hits].mean()
+
+
+def test_clean_frames_keep_the_saddle_fit(detector):
+    scene = _calm_scene(3, 0.0)
+    assert image_noise(scene.image) < NOISY_SIGMA
+    found = detector.detect(scene.image)
+    assert "edges" not in found.timings_ms
+    assert _errors(found.xy, scene.corners).mean() < 0.05
+
+
+def test_lattice_steps_mirror_missing_neighbours():
+    from ccdn.grid import Board
+
+    grid = np.array([(r, c) for r in range(2) for c in range(3)], np.int32)
+    xy = (grid[:, ::-1] * [10.0, 12.0] + [5, 7]).astype(np.float32)
+    board = Board(np.arange(6), grid, xy, 3, 2)
+    steps = lattice_steps(board)
+    np.testing.assert_allclose(steps[:, 0], [[10, 0]] * 6)  # +col, mirrored at the last column
+    np.testing.assert_allclose(steps[:, 1], [[-10, 0]] * 6)
+    np.testing.assert_allclose(steps[:, 2], [[0, 12]] * 6)  # +row, mirrored on the last row
+    np.testing.assert_allclose(steps[:, 3], [[0, -12]] * 6)
