@@ -43,3 +43,13 @@ def nearest_distances(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
     if len(found) == 0:
         return np.full(len(truth), np.inf)
     return np.linalg.norm(truth[:, None] - found[None].astype(np.float64), axis=2).min(1)
+
+
+def calm_scene(seed: int, **changes):
+    """A render of one board without lens, blur, noise or lighting effects (ccdn_training.synth),
+    with `changes` to its SceneConfig."""
+    from ccdn_training.synth import SceneConfig, render_scene
+
+    calm = dict(p_no_board=0, p_two_boards=0, p_occluder=0, p_blur=0, p_motion=0, p_defocus=0, p_noise=0, p_jpeg=0,
+                p_glare=0, p_shadow=0, p_dark=0, p_low_contrast=0, p_radial=0, p_fisheye=0, p_invert=0)
+    return render_scene(np.random.default_rng(seed), SceneConfig(**{**calm, **changes}))

@@ -7,16 +7,13 @@ import numpy as np
 import pytest
 
 import ccdn
+from conftest import calm_scene
 from ccdn.edges import NOISY_SIGMA, image_noise, lattice_steps
 
 
 def _calm_scene(seed: int, noise: float):
-    from ccdn_training.synth import SceneConfig, render_scene
-
-    cfg = SceneConfig(p_no_board=0, p_two_boards=0, p_occluder=0, p_blur=0, p_motion=0, p_defocus=0,
-                      p_noise=1.0 if noise else 0.0, noise_sigma=(noise, noise), p_jpeg=0, p_glare=0, p_shadow=0,
-                      p_dark=0, p_low_contrast=0, square_px=(18, 30), max_tilt_deg=30, p_radial=0, p_fisheye=0)
-    return render_scene(np.random.default_rng(seed), cfg)
+    return calm_scene(seed, p_noise=1.0 if noise else 0.0, noise_sigma=(noise, noise), square_px=(18, 30),
+                      max_tilt_deg=30)
 
 
 def _errors(found: np.ndarray, truth: np.ndarray) -> np.ndarray:

@@ -287,3 +287,26 @@ def test_detector_returns_the_board_with_indices_into_its_corners(detector, exam
     near = np.linalg.norm(board.xy[:, None] - ex["corners"][None], axis=2).min(1) < 2.0
     assert near.all() and len(board) >= 0.9 * 54
     assert json.loads(result.to_json())["boards"][0]["cols"] == 9
+
+
+def test_the_last_visible_corner_of_a_board_cut_by_the_frame_is_kept():
+    """A corner with a single row/column neighbour is kept where the frame cuts the board (another
+    neighbour would lie off the frame): partial boards lost such corners to the outline pruning."""
+    import ccdn
+    from conftest import calm_scene
+
+    detector = ccdn.Detector(threads=2)
+    lone = found = 0
+    for seed in range(30):
+        scene = calm_scene(seed, square_px=(45.0, 110.0))
+        labelled = {(int(r), int(c)): p for (r, c), p in zip(scene.grid, scene.corners)}
+        h, w = scene.image.shape
+        result = detector.detect(scene.image)
+        for (r, c), p in labelled.items():
+            steps = [(r + dr, c + dc) for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0))]
+            if sum(s in labelled for s in steps) != 1 or min(p[0], p[1], w - 1 - p[0], h - 1 - p[1]) < 4:
+                continue
+            lone += 1
+            found += bool(len(result.xy)) and np.linalg.norm(result.xy - p, axis=1).min() < 1.0
+    assert lone >= 8, lone
+    assert found >= 0.8 * lone, (found, lone)

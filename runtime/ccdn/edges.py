@@ -78,7 +78,7 @@ def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tupl
     moved = np.zeros(len(xy), bool)
     for _ in range(ITERATIONS):
         lines = [_edge_line(image, current, steps[:, 2 * k], steps[:, 2 * k + 1],
-                            np.nanmean(lengths[:, 2 - 2 * k : 4 - 2 * k], 1)) for k in (0, 1)]
+                            lengths[:, 2 - 2 * k : 4 - 2 * k].mean(1)) for k in (0, 1)]
         normals = np.stack([normal for _, normal in lines], 1)  # (M, 2 lines, 2)
         offsets = np.stack([offset for offset, _ in lines], 1)  # (M, 2)
         solvable = np.isfinite(offsets).all(1) & np.isfinite(normals).all((1, 2))

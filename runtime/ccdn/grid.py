@@ -327,10 +327,23 @@ class _Grower:
         return bool(self._take(targets, preds[first], tols[first], *self._axes(targets)).any())
 
     def prune(self) -> None:
-        """Drop corners with fewer than 2 row/column neighbours: lone points on a board's outline."""
+        """Drop corners with fewer than 2 row/column neighbours: lone points on a board's outline.
+        A corner with one neighbour stays where the frame cuts the board (a missing neighbour would
+        lie off the frame) if it passes the strict image test (the seed's: even contrast, uniform
+        quads): the last visible corner of a partial board."""
         while True:
             filled = self.idx >= 0
-            weak = filled & (_row_col_neighbours(filled) < 2)
+            neighbours = _row_col_neighbours(filled)
+            weak = filled & (neighbours < 2)
+            single = np.argwhere(weak & (neighbours == 1))
+            if len(single):
+                u, v = self._axes(single)
+                points = self.pos[single[:, 0], single[:, 1]]
+                beyond = np.stack([points + u, points - u, points + v, points - v], 1).reshape(-1, 2)
+                sure = ~self.sampler.contains(beyond).reshape(-1, 4).all(1)
+                sure &= np.isfinite(u).all(1) & np.isfinite(v).all(1)
+                sure[sure] = self._accepts(single[sure], points[sure], u[sure], v[sure], strict=True)
+                weak[single[sure, 0], single[sure, 1]] = False
             if not weak.any():
                 return
             self.idx[weak] = -1
