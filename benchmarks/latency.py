@@ -82,11 +82,22 @@ def cold_start(model: str | None) -> float:
     return float(out.stdout.strip())
 
 
+def cpu_name() -> str:
+    """The CPU's model name (Linux: /proc/cpuinfo), else what the platform module says."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-STAGES = ("load", "network", "peaks", "refine", "boards")
+STAGES = ("load", "network", "peaks", "refine", "boards", "edges")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -101,7 +112,7 @@ def main(argv: list[str] | None = None) -> None:
 
     loaded = load_frames(args.frames)
     board_sizes = [s for _, s in loaded]
-    report = {"machine": {"cpu": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+    report = {"machine": {"cpu": cpu_name(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},
               "frames": len(loaded), "repeat": args.repeat,
               "cold_start_ms": {str(m or "default"): cold_start(m) * 1e3 for m in args.models}, "runs": []}

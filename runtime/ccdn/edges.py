@@ -27,7 +27,7 @@ import numpy as np
 from .grid import Board, nanmedian_rows
 
 NOISY_SIGMA = 5.0  # grey levels of image noise from which board corners are refined on their edges
-NOISE_SAMPLE_PIXELS = 1 << 17  # the noise estimate looks at about this many pixels (a strided subsample)
+NOISE_SAMPLE_PIXELS = 1 << 17  # the noise estimate's median is taken over about this many pixels
 _LAPLACIAN_PAIR = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)  # zero on planes; |kernel| = 6
 SMOOTHING = 1.0  # px, Gaussian sigma of the image the profiles are sampled on
 REACH = (0.1, 0.5)  # profiles from this far to this far along each half-edge (x the step to the neighbour)
@@ -43,12 +43,13 @@ def image_noise(gray: np.ndarray) -> float:
     """Robust estimate of the image noise's standard deviation in grey levels: the median absolute
     response of a kernel that cancels smooth image content (Immerkaer's), scaled to a Gaussian's
     sigma. Edges and corners are a minority of pixels, so the median ignores them."""
-    step = max(1, int(np.ceil(np.sqrt(gray.size / NOISE_SAMPLE_PIXELS))))
-    if min(gray.shape) < 3 * step:
+    if min(gray.shape) < 3:
         return 0.0
-    response = cv2.filter2D(gray[::step, ::step], cv2.CV_16S, _LAPLACIAN_PAIR, borderType=cv2.BORDER_REFLECT)
-    counts = np.bincount(np.abs(response).ravel())  # integer responses: an exact median without sorting
-    median = int(np.searchsorted(np.cumsum(counts), (response.size + 1) / 2))
+    response = cv2.filter2D(gray, cv2.CV_16S, _LAPLACIAN_PAIR, borderType=cv2.BORDER_REFLECT)
+    step = max(1, int(np.ceil(np.sqrt(gray.size / NOISE_SAMPLE_PIXELS))))  # the median of a strided subsample
+    sample = np.abs(response[::step, ::step]).ravel()
+    counts = np.bincount(sample)  # integer responses: an exact median without sorting
+    median = int(np.searchsorted(np.cumsum(counts), (sample.size + 1) / 2))
     return 1.4826 * median / 6.0
 
 
