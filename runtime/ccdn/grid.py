@@ -165,6 +165,9 @@ class _Grower:
         near = np.zeros(self.idx.shape, np.uint8)  # failed positions near a change may pass now
         near[rc[:, 0], rc[:, 1]] = 1
         self.stale &= cv2.dilate(near, np.ones((2 * _REACH + 1,) * 2, np.uint8)) == 0
+        # a completion fit that failed next to a new corner is tried again: its prediction now has
+        # more support (a hole first predicted from one side fits once its other sides are filled)
+        self.tried &= cv2.dilate(near, np.ones((3, 3), np.uint8)) == 0
         self._ensure_margin()
 
     def _gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
