@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 from collections import defaultdict
@@ -25,6 +24,8 @@ from pathlib import Path
 import numpy as np
 
 import ccdn
+
+from machine import cpu_name
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL_DEV = ROOT.parent / "shared" / "data" / "real-dev"
@@ -192,7 +193,7 @@ def main(argv: list[str] | None = None) -> None:
     result = evaluate(detector, args.synthetic, args.seed, real_dev=not args.no_real_dev)
     result["config"] = {"model": detector.model.name, "version": detector.model.version, "refinement": args.refinement,
                         "filter": args.filter, "coarse_to_fine": not args.no_coarse, "match_radius_px": MATCH_RADIUS, "seed": args.seed,
-                        "machine": platform.processor() or platform.machine(), "seconds": round(time.time() - t0, 1)}
+                        "machine": cpu_name(), "seconds": round(time.time() - t0, 1)}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1))
     print(format_table(result["groups"]))

@@ -28,6 +28,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from machine import cpu_name
+
 ROOT = Path(__file__).resolve().parents[1]
 REAL_DEV = ROOT.parent / "shared" / "data" / "real-dev" / "images"
 MEMORY_SIZES = [(64, 48), (2000, 1500), (4000, 3000)]
@@ -114,7 +116,7 @@ def main(argv: list[str] | None = None) -> None:
         memory = peak_memory(scratch)
     result = {
         "folder": str(args.folder), "megapixels_total": round(megapixels, 1), "throughput": rates, "memory": memory,
-        "cpu": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+        "cpu": cpu_name(), "cpus": os.cpu_count(),
         "load_average_before": [round(x, 2) for x in load_before],
         "load_average_after": [round(x, 2) for x in os.getloadavg()],
         "python": platform.python_version(), "opencv": cv2.__version__,

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 from pathlib import Path
 
@@ -24,6 +23,8 @@ import numpy as np
 
 import ccdn
 from ccdn.calibration import CalibrationError, View, calibrate
+
+from machine import cpu_name
 
 BOARD = (9, 6)
 SIZE = (640, 480)
@@ -137,7 +138,7 @@ def main() -> None:
     detector = ccdn.Detector(args.model, args.threads)
     report = {"board": BOARD, "image_size": SIZE, "views": args.views,
               "model": f"{detector.model.name} {detector.model.version}",
-              "threads": detector.threads, "cpu": platform.processor() or platform.machine(), "cameras": {}}
+              "threads": detector.threads, "cpu": cpu_name(), "cameras": {}}
     print(f"{'camera':16} {'detector':8} {'views':>7} {'corner err':>11} {'RMS px':>7} {'fx %':>7} {'fy %':>7} "
           f"{'cx px':>7} {'cy px':>7} {'ms/img':>7}")
     for name, cam in CAMERAS.items():

@@ -27,6 +27,8 @@ import numpy as np
 
 import ccdn
 
+from machine import cpu_name
+
 ROOT = Path(__file__).resolve().parents[1]
 REAL_DEV = ROOT.parent / "shared" / "data" / "real-dev"
 SIZES = [(640, 480), (2000, 1500)]
@@ -80,17 +82,6 @@ def cold_start(model: str | None) -> float:
             f"d=ccdn.Detector({model!r}); d.detect(np.zeros((480, 640), np.uint8)); print(time.perf_counter()-t)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     return float(out.stdout.strip())
-
-
-def cpu_name() -> str:
-    """The CPU's model name (Linux: /proc/cpuinfo), else what the platform module says."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def peak_rss_mb() -> float:

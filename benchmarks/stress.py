@@ -41,6 +41,7 @@ from ccdn_training.synth import PAPER_BOARDS, Scene, SceneConfig, render_scene
 from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).parent))
+from machine import cpu_name  # noqa: E402
 from accuracy import MATCH_RADIUS, format_table, match, same_indexing, summarise  # noqa: E402
 from peers import DETECTORS, Adapter, BoardSize, load_adapters  # noqa: E402
 
@@ -245,7 +246,7 @@ def main(argv: list[str] | None = None) -> None:
                         "seeds": f"tried in order from {SEED_BASE} + {SEEDS_PER_SUBSET} * subset index",
                         "match_radius_px": MATCH_RADIUS, "min_spacing_px": MIN_SPACING_PX, "threads": args.threads,
                         "detectors": {a.name: a.note for a in adapters}, "skipped": skipped,
-                        "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                        "machine": cpu_name(), "cpus": os.cpu_count(),
                         "python": platform.python_version(), "seconds": round(time.time() - t0, 1)}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1))

@@ -65,3 +65,18 @@ def test_lattice_steps_mirror_missing_neighbours():
     np.testing.assert_allclose(steps[:, 1], [[-10, 0]] * 6)
     np.testing.assert_allclose(steps[:, 2], [[0, 12]] * 6)  # +row, mirrored on the last row
     np.testing.assert_allclose(steps[:, 3], [[0, -12]] * 6)
+
+
+def test_profiles_without_contrast_raise_no_warnings(detector):
+    """A noisy render where some edge profiles are flat (contrast 0): they are unusable, and the
+    detection emits no numpy warning (an inf - inf sum did, in the app's log)."""
+    import warnings
+
+    from ccdn_training.synth import SceneConfig, render_scene
+
+    image = render_scene(np.random.default_rng(7021), SceneConfig()).image
+    assert image_noise(image) >= NOISY_SIGMA
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        found = detector.detect(image)
+    assert "edges" in found.timings_ms and len(found.boards) > 0

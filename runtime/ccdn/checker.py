@@ -16,8 +16,7 @@ class Sampler:
     """Mean grey level of small boxes, via an integral image (NaN where the centre is off the image)."""
 
     def __init__(self, gray: np.ndarray) -> None:
-        self.integral = cv2.integral(gray, sdepth=cv2.CV_64F)
-        self._flat = self.integral.ravel()  # gathered by flat index: cheaper than 2-D fancy indexing
+        self._integral = cv2.integral(gray, sdepth=cv2.CV_64F).ravel()  # flat: np.take beats 2-D fancy indexing
         self.height, self.width = gray.shape
 
     def contains(self, points: np.ndarray) -> np.ndarray:
@@ -28,15 +27,15 @@ class Sampler:
         """Mean over the (2 radius + 1)^2 box around each point (K, 2); radius (K,) int."""
         xi = np.rint(points[:, 0]).astype(np.int64)
         yi = np.rint(points[:, 1]).astype(np.int64)
-        w1, h1, stride = self.width - 1, self.height - 1, self.width + 1
+        w1, h1, stride = self.width - 1, self.height - 1, self.width + 1  # stride: the integral's row length
         # np.minimum / np.maximum: np.clip's Python wrapper costs more than the work on these sizes
         x0, x1 = np.minimum(np.maximum(xi - radius, 0), w1), np.minimum(np.maximum(xi + radius, 0), w1) + 1
-        y0 = np.minimum(np.maximum(yi - radius, 0), h1) * stride
-        y1 = (np.minimum(np.maximum(yi + radius, 0), h1) + 1) * stride
-        s = self._flat
-        total = s.take(y1 + x1) - s.take(y0 + x1) - s.take(y1 + x0) + s.take(y0 + x0)
+        y0, y1 = np.minimum(np.maximum(yi - radius, 0), h1), np.minimum(np.maximum(yi + radius, 0), h1) + 1
+        row0, row1 = y0 * stride, y1 * stride
+        s = self._integral
+        total = s.take(row1 + x1) - s.take(row0 + x1) - s.take(row1 + x0) + s.take(row0 + x0)
         inside = (xi >= 0) & (yi >= 0) & (xi <= w1) & (yi <= h1)
-        return np.where(inside, total / ((x1 - x0) * (y1 - y0) // stride), np.nan)
+        return np.where(inside, total / ((x1 - x0) * (y1 - y0)), np.nan)
 
 
 def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, reach: float = 0.125,

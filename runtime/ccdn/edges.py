@@ -80,8 +80,9 @@ def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tupl
     lengths = np.linalg.norm(steps, axis=2)
     moved = np.zeros(len(xy), bool)
     for _ in range(ITERATIONS):
-        lines = [_edge_line(image, current, steps[:, 2 * k], steps[:, 2 * k + 1],
-                            lengths[:, 2 - 2 * k : 4 - 2 * k].mean(1)) for k in (0, 1)]
+        # the line along the columns (+col / -col steps) is as wide as the row steps are long, and back
+        lines = [_edge_line(image, current, steps[:, 0], steps[:, 1], lengths[:, 2:].mean(1)),
+                 _edge_line(image, current, steps[:, 2], steps[:, 3], lengths[:, :2].mean(1))]
         normals = np.stack([normal for _, normal in lines], 1)  # (M, 2 lines, 2)
         offsets = np.stack([offset for offset, _ in lines], 1)  # (M, 2)
         solvable = np.isfinite(offsets).all(1) & np.isfinite(normals).all((1, 2))
@@ -120,8 +121,8 @@ def _edge_line(image: np.ndarray, xy: np.ndarray, forward: np.ndarray, backward:
         low = np.where(outer & (k < 0), values, 0).sum(2) / np.maximum((outer & (k < 0)).sum(2), 1)
         high = np.where(outer & (k > 0), values, 0).sum(2) / np.maximum((outer & (k > 0)).sum(2), 1)
         contrast = high - low
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rise = np.where(inside, (values - low[..., None]) / contrast[..., None], 0.0)
+        flat = np.where(contrast == 0, np.nan, contrast)  # no edge: NaN (unusable below), not +-inf
+        rise = np.where(inside, (values - low[..., None]) / flat[..., None], 0.0)
         edge = inside.sum(2) * SAMPLE_STEP / 2 - rise.sum(2) * SAMPLE_STEP  # area method: offset along across_unit
         on_image = ((px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)).all(2)
         typical = nanmedian_rows(np.where(on_image, np.abs(contrast), np.nan))[:, None]
