@@ -14,7 +14,8 @@ import cv2
 import numpy as np
 import pytest
 
-from ccdn.grid import Board, find_boards
+from ccdn.checker import Sampler
+from ccdn.grid import Board, _Grower, find_boards
 
 synth = pytest.importorskip("ccdn_training.synth")
 
@@ -143,6 +144,40 @@ def test_points_on_the_board_outline_do_not_extend_the_board():
         (board,) = find_boards(scene.image, xy, np.ones(len(xy)))
         assert (board.corner_index < len(scene.corners)).all()
         assert sorted((board.cols, board.rows)) == [5, 7]
+
+
+def test_a_flat_board_grows_ring_at_once_from_its_seed_square():
+    """Before any local round, the homography growth alone fills a flat board (the speed-up)."""
+    for scene in whole_boards(2, board_sizes=((9, 6),), max_tilt_deg=35.0):
+        xy = scene.corners.astype(np.float64)
+        grower = _Grower(xy, np.ones(len(xy), bool), Sampler(scene.image))
+        at = {(int(r), int(c)): k for k, (r, c) in enumerate(scene.grid)}
+        square = [at[(2, 3)], at[(2, 4)], at[(3, 3)], at[(3, 4)]]
+        (ux, uy), (vx, vy) = xy[square[1]] - xy[square[0]], xy[square[2]] - xy[square[0]]
+        if ux * vy - uy * vx < 0:  # the grower's (u, v) are right-handed like image (x, y)
+            square = [square[0], square[2], square[1], square[3]]
+        grower.seed(square, sign=1.0, contrast=100.0)
+        grower._grow_by_homography()
+        grid, idx = grower.cells()
+        assert len(idx) == 54
+        assert index_map(Board(idx, grid, xy[idx], 9, 6), scene.grid[idx]) is not None
+
+
+def test_ring_at_once_growth_does_not_jump_a_gap_to_another_board_on_the_same_lattice():
+    """Two boards cut from one pattern by a blank band two squares wide: their corners line up on
+    one lattice with matching colours, but no row or column of corners joins them."""
+    step, squares_x, squares_y = 24, 13, 7
+    image = np.full((squares_y * step + 48, squares_x * step + 48), 230, np.uint8)
+    for r in range(squares_y):
+        for c in range(squares_x):
+            if (r + c) % 2 == 0 and c not in (6, 7):
+                image[24 + r * step : 24 + (r + 1) * step, 24 + c * step : 24 + (c + 1) * step] = 25
+    image[:, 24 + 6 * step : 24 + 8 * step] = 230
+    image = cv2.GaussianBlur(image, (5, 5), 1.0)
+    cols = [c for c in range(1, squares_x) if c not in (6, 7, 8)]  # inner corners: not on the band's edges
+    xy = np.array([(23.5 + c * step, 23.5 + r * step) for r in range(1, squares_y) for c in cols], np.float32)
+    boards = find_boards(image, xy, np.ones(len(xy)))
+    assert sorted((b.cols, b.rows) for b in boards) == [(4, 6), (5, 6)]
 
 
 def test_points_off_any_checkerboard_form_no_board():
