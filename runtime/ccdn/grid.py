@@ -574,9 +574,12 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     norms = (xy**2).sum(1)
     for start in range(0, len(xy), 256):
         block = slice(start, start + 256)
-        d2 = norms[block, None] + norms[None] - 2 * (xy[block] @ xy.T)
+        d2 = xy[block] @ xy.T  # in place from here: temporaries of this size cost more than the arithmetic
+        d2 *= -2
+        d2 += norms[None]
+        d2 += norms[block, None]
         d2[np.arange(len(d2)), np.arange(start, start + len(d2))] = np.inf
-        part = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        part = d2.argmin(1)[:, None] if k == 1 else np.argpartition(d2, k - 1, axis=1)[:, :k]
         d2 = np.take_along_axis(d2, part, 1)
         order = np.argsort(d2, axis=1, kind="stable")
         index[block] = np.take_along_axis(part, order, 1)

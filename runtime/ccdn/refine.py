@@ -132,7 +132,8 @@ def _fit(smooth: np.ndarray, centre: np.ndarray, quadric: _Quadric, min_saddle: 
         weight = quadric.weight2[None] * inside[cut]
         normal = np.einsum("np,pi,pj->nij", weight, quadric.design, quadric.design)
         rhs = np.einsum("np,pi->ni", weight * values[cut], quadric.design)
-        solvable = np.linalg.cond(normal) < 1e8
+        eigen = np.linalg.eigvalsh(normal)  # ascending; symmetric, so their ratio is the condition number
+        solvable = eigen[:, 0] > 1e-8 * eigen[:, -1]
         coef[cut] = np.nan
         coef[cut[solvable]] = np.linalg.solve(normal[solvable], rhs[solvable][..., None])[..., 0]
     a, b, c, d, e = coef[:, 0], coef[:, 1], coef[:, 2], coef[:, 3], coef[:, 4]
