@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ccdn.refine import refine
+import cv2
+
+from ccdn.refine import refine, refine_from_shrunk
 
 
 @pytest.fixture(scope="module")
@@ -53,3 +55,16 @@ def test_corners_at_the_frame_edge_refine_without_bias(clean_scene):
         errors.append(np.linalg.norm(refined[0] - (corner - [x0, y0])))
     assert len(errors) >= 5
     assert np.mean(errors) < 0.15 and np.max(errors) < 0.3
+
+
+def test_peaks_of_a_halved_frame_refine_on_it_first_then_to_the_exact_corners(clean_scene):
+    """Coarse-to-fine: peaks of the half-size frame, here up to a (half-size) pixel off as the
+    network's can be, start ~2 px off at full size; the rough pass on the half-size frame brings
+    every one to the corner (the fine pass alone, from there, converges on ~2/3 of them)."""
+    image = clean_scene.image
+    half = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    peaks = np.rint((clean_scene.corners + 0.5) / 2 - 0.5).astype(np.int32)
+    peaks += np.random.default_rng(0).integers(-1, 2, peaks.shape, dtype=np.int32)
+    refined, ok = refine_from_shrunk(image, half, peaks, 2, 3, 4.0)
+    assert ok.mean() > 0.95
+    assert np.linalg.norm(refined[ok] - clean_scene.corners[ok], axis=1).mean() < 0.05

@@ -23,7 +23,7 @@ from .edges import NOISY_SIGMA, image_noise, lattice_steps, refine_on_edges
 from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .peaks import find_peaks, kmeans_outliers, suppress
-from .refine import refine, window_for_spacing
+from .refine import refine, refine_from_shrunk, window_for_spacing
 from .result import Detection
 from .session import ScoreSession
 
@@ -116,8 +116,10 @@ class Detector:
         clock.lap("peaks")
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
         radius = window_for_spacing(_median_spacing(start)) if len(start) > 1 else 3
-        wide = max(3 * scale - 1, radius + 2) if scale > 1 else 0  # peaks of a shrunk frame are rough starts
-        refined, ok = refine(gray, start, self.refinement, 2.0 * scale, radius, wide)
+        if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
+            refined, ok = refine_from_shrunk(gray, frame, xy, scale, radius, 2.0 * scale)
+        else:
+            refined, ok = refine(gray, start, self.refinement, 2.0 * scale, radius)
         refined, values = refined[ok], values[ok]
         distinct = suppress(refined, radius=1.0)  # refinement can move two peaks onto one corner
         refined, values = refined[distinct], values[distinct]

@@ -6,9 +6,10 @@ only on the patch grid), step to the quadric's stationary point, re-centre and r
 corner is a clear saddle (sqrt(b^2 - 4ac) >= `min_saddle` gray levels / px^2); a corner whose fit is
 no saddle (flat, an edge, a blob), or that walks away from its peak, is flagged as not converged.
 The fit is biased when it starts more than about a pixel off (measured on renders: a third of the
-corners started 2 px off end up 0.3-1.3 px away), so starts known to be rough (peaks from a
-downscaled frame, positions predicted by the grid) first go through a `wide` pass: the same fit with
-a larger window on a more smoothed image, whose basin is wider, then the fine pass.
+corners started 2 px off end up 0.3-1.3 px away), so starts known to be rough first go through a
+rough pass, then the fine pass: peaks from a downscaled frame are fitted on that frame itself
+(`refine_from_shrunk`: a quarter of the pixels at half size), positions predicted by the grid with
+a `wide` pass (the same fit with a larger window on a more smoothed image, whose basin is wider).
 
 `cornersubpix`: OpenCV's gradient-orthogonality refinement (one C call for all corners).
 Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
@@ -179,6 +180,24 @@ def _mass_inside(n: int, kernel: np.ndarray) -> np.ndarray:
     return np.convolve(np.ones(n), kernel)[half : half + n].astype(np.float32)
 
 
+def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, scale: int, radius: int,
+                       max_shift: float) -> tuple[np.ndarray, np.ndarray]:
+    """Saddle points of gray for peaks xy (N, 2) found on `shrunk` (gray reduced `scale` times): the
+    rough pass on the shrunk frame itself (a 1/scale^2 of the pixels to smooth and fit), then the
+    fine pass on gray; corners may move max_shift px (gray's) from the peaks. Returns refined xy
+    (N, 2) float32 in gray's pixels and a converged mask (N,) bool."""
+    start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in gray's pixels
+    if len(xy) == 0:
+        return start.astype(np.float32), np.zeros(0, bool)
+    small = max(3, -(-radius // scale) + 1)  # the fine window on the shrunk frame, and a pixel for the peaks' rounding
+    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 5, max_shift / scale)
+    rough = (rough.astype(np.float64) + 0.5) * scale - 0.5
+    fine, ok_fine = refine_saddle_points(gray, np.where(ok[:, None], rough, start), radius, 0.4 * radius,
+                                         max_shift=max_shift)
+    ok = ok_fine & (np.hypot(*(fine - start).T) <= max_shift)
+    return np.where(ok[:, None], fine, start).astype(np.float32), ok
+
+
 def refine_cornersubpix(gray: np.ndarray, xy: np.ndarray, radius: int = 4, max_shift: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV cornerSubPix on all corners at once; same outputs as refine_saddle_points."""
     if len(xy) == 0:
@@ -194,11 +213,11 @@ def refine_cornersubpix(gray: np.ndarray, xy: np.ndarray, radius: int = 4, max_s
 
 
 def refine(gray: np.ndarray, xy: np.ndarray, method: str = "saddle", max_shift: float = 2.0,
-           radius: int = 3, wide: int = 0) -> tuple[np.ndarray, np.ndarray]:
+           radius: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Dispatch to a refinement method by name (see METHODS); corners may move up to max_shift px;
-    radius: the window (saddle: sigma 0.4 radius); wide: the saddle fit's first-pass window for rough starts."""
+    radius: the window (saddle: sigma 0.4 radius)."""
     if method == "saddle":
-        return refine_saddle_points(gray, xy, radius, 0.4 * radius, max_shift=max_shift, wide=wide)
+        return refine_saddle_points(gray, xy, radius, 0.4 * radius, max_shift=max_shift)
     if method == "cornersubpix":
         return refine_cornersubpix(gray, xy, radius + 1, max_shift=max_shift)
     if method == "none":
