@@ -12,7 +12,7 @@ from ccdn_training.export import to_onnx  # noqa: E402
 from ccdn_training.loss import ccdn_loss  # noqa: E402
 from ccdn_training.model import ARCHITECTURES, CCDN, FastCCDN, parameter_count  # noqa: E402
 from ccdn_training.synth import SceneConfig, render_scene  # noqa: E402
-from ccdn_training.train import staircase_lr  # noqa: E402
+from ccdn_training.train import initial_weights, staircase_lr  # noqa: E402
 
 
 def test_network_has_the_papers_16301_parameters():
@@ -148,24 +148,23 @@ def test_runtime_pads_frames_for_a_strided_model_and_stitches_its_strips(tmp_pat
     np.testing.assert_allclose(stitched, ref, atol=1e-4)
 
 
-def test_shipped_model_matches_pytorch_with_its_own_weights(examples):
-    """The committed paper.onnx, loaded back into the PyTorch module, gives the same scores."""
+@pytest.mark.parametrize("name", ["paper", "fast"])
+def test_shipped_model_matches_pytorch_with_its_own_weights(examples, name):
+    """A committed .onnx, loaded back into its PyTorch module (as --init-from does to fine-tune a
+    shipped model), gives the same scores."""
     import cv2
-    import onnx
-    from onnx import numpy_helper
 
     from ccdn.models import model_path
 
-    proto = onnx.load(str(model_path("paper")))
-    weights = {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in proto.graph.initializer}
-    model = CCDN().eval()
-    model.load_state_dict(weights)
+    path = model_path(name)
+    model = ARCHITECTURES[name]().eval()
+    model.load_state_dict(initial_weights(path))
     gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)[:200, :240]
     x = (gray.astype(np.float32) / 255)[None, None]
-    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     with torch.no_grad():
         ref = model(torch.from_numpy(x)).numpy()
-    assert np.abs(session.run(None, {"image": x})[0] - ref).max() < 1e-4
+    assert np.abs(session.run(None, {session.get_inputs()[0].name: x})[0] - ref).max() < 1e-4
 
 
 def test_banks_render_with_overrides_and_load_together(tmp_path):

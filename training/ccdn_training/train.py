@@ -83,13 +83,24 @@ def save_checkpoint(path: Path, **state) -> None:
     tmp.replace(path)
 
 
+def initial_weights(path: Path) -> dict[str, torch.Tensor]:
+    """A state dict from a training checkpoint (.pt) or from an exported model (.onnx: its
+    initializers carry the parameter names), e.g. to fine-tune a shipped model."""
+    if path.suffix != ".onnx":
+        return torch.load(path, map_location="cpu", weights_only=False)["model"]
+    import onnx
+    from onnx import numpy_helper
+
+    return {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in onnx.load(str(path)).graph.initializer}
+
+
 def train(args: argparse.Namespace) -> None:
     torch.set_num_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
     model = ARCHITECTURES[args.arch]()
     model.reset_parameters_paper()
     if args.init_from:  # warm start from another run's weights (recorded in the recipe)
-        model.load_state_dict(torch.load(args.init_from, map_location="cpu", weights_only=False)["model"])
+        model.load_state_dict(initial_weights(args.init_from))
     model = model.to(memory_format=torch.channels_last)
     optimizer = make_optimizer(model, args.recipe)
     rng = np.random.default_rng(args.seed)
@@ -170,7 +181,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--val-every", type=int, default=500)
     parser.add_argument("--checkpoint-every", type=int, default=250)
     parser.add_argument("--resume", action="store_true", help="continue from --out/last.pt")
-    parser.add_argument("--init-from", type=Path, help="start from this checkpoint's weights (fresh optimizer)")
+    parser.add_argument("--init-from", type=Path,
+                        help="start from these weights: a checkpoint (.pt) or an exported model (.onnx); fresh optimizer")
     train(parser.parse_args(argv))
 
 
