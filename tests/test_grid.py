@@ -180,6 +180,23 @@ def test_ring_at_once_growth_does_not_jump_a_gap_to_another_board_on_the_same_la
     assert sorted((b.cols, b.rows) for b in boards) == [(4, 6), (5, 6)]
 
 
+def test_a_stub_of_pattern_beyond_the_board_edge_does_not_become_a_row():
+    """Clutter that continues the pattern for a few squares beyond an edge makes true X-junctions
+    on the outline; two of them (each with two grid neighbours) are a stub of the row inside it."""
+    step = 24
+    image = np.full((10 * step, 12 * step), 230, np.uint8)
+    squares = [(r, c) for r in range(7) for c in range(10)] + [(7, c) for c in (3, 4, 5)]  # + the spur
+    for r, c in squares:
+        if (r + c) % 2 == 0:
+            image[24 + r * step : 24 + (r + 1) * step, 24 + c * step : 24 + (c + 1) * step] = 25
+    image = cv2.GaussianBlur(image, (5, 5), 1.0)
+    inner = [(23.5 + c * step, 23.5 + r * step) for r in range(1, 7) for c in range(1, 10)]
+    stub = [(23.5 + c * step, 23.5 + 7 * step) for c in (4, 5)]
+    xy = np.array(inner + stub, np.float32)
+    (board,) = find_boards(image, xy, np.ones(len(xy)))
+    assert (board.cols, board.rows) == (9, 6) and (board.corner_index < len(inner)).all()
+
+
 def test_points_off_any_checkerboard_form_no_board():
     scene = render(3, p_no_board=1.0)
     xy = np.random.default_rng(0).random((300, 2)) * [640, 480]

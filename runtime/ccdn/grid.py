@@ -19,7 +19,8 @@ parallelograms with diagonal neighbours; the median of the predictions), and the
 corner within 0.3 of the shorter local lattice step is taken if it passes the image test. When nothing more can be
 added, growth may jump over one missing position along a row or column (a hole, not the end of the
 board). Corners left with fewer than two row/column neighbours are then dropped (lone points on the
-outline). A grid of at least 3 x 3 positions and 8 corners is a board; its corners are removed and
+outline), and so is an outermost row or column that is a stub of the line inside it (at most 0.3 of
+its length) unless the frame cuts it (clutter continuing the pattern beyond an edge). A grid of at least 3 x 3 positions and 8 corners is a board; its corners are removed and
 the search repeats for further boards. Corners in no board are dropped. Local predictions make this
 tolerant of perspective and strong radial/fisheye distortion.
 
@@ -77,6 +78,7 @@ SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's
 SEED_AXES = 0.3  # ... and this far along each lattice step: a grid of thin lines passes the diagonal samples
 FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ring-at-once growth
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
+OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
 _NEARBY = sorted(((i, j) for i in range(-3, 4) for j in range(-3, 4)), key=lambda q: (abs(q[0]) + abs(q[1]), q))
@@ -411,6 +413,32 @@ class _Grower:
             self.idx[weak] = -1
             self.pos[weak] = np.nan
 
+    def trim_outline(self) -> None:
+        """Drop an outermost row or column that is a stub of the line inside it (at most
+        OUTLINE_STUB of its length) where the rest of it would lie inside the frame: beyond a
+        board's edge, clutter that continues its pattern for a few squares lets the outline pass
+        the image test there (on the stress renders, every false positive of the clean,
+        motion-blur, defocus, low-contrast and two-boards subsets lay on such a stub). A line that
+        the frame cuts keeps its corners."""
+        filled = self.idx >= 0
+        drop = np.zeros_like(filled)
+        for grid, mask in ((filled, drop), (filled.T, drop.T)):  # rows, then columns (views)
+            pos = self.pos if grid is filled else self.pos.transpose(1, 0, 2)
+            lines = np.nonzero(grid.any(1))[0]
+            if len(lines) < 3:
+                continue
+            for outer, step in ((lines[0], 1), (lines[-1], -1)):
+                inner = outer + step
+                if grid[outer].sum() > OUTLINE_STUB * grid[inner].sum():
+                    continue
+                missing = grid[inner] & ~grid[outer]
+                beyond = 2 * pos[inner, missing] - pos[inner + step, missing]  # where the outer corners would be
+                beyond = beyond[np.isfinite(beyond).all(1)]
+                if len(beyond) and self.sampler.contains(beyond).all():
+                    mask[outer] |= grid[outer]
+        self.idx[drop] = -1
+        self.pos[drop] = np.nan
+
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
         """The board so far: grid positions (M, 2) (row, col) and corner indices (M,)."""
         rc = np.argwhere(self.idx >= 0)
@@ -640,6 +668,7 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
         grower.seed(square[1], float(square[2]), float(square[3]))
         grower.grow()
         grower.prune()
+        grower.trim_outline()
         grid, idx = grower.cells()
         if len(idx) < MIN_CORNERS:
             continue
