@@ -8,19 +8,20 @@ two neighbours p + u, p + v whose sum p + u + v is also a corner (one square of 
 whose four corners pass the image test below, with uniform grey inside each sampled quad, sampled
 out to a quarter of its diagonals (a wrong lattice samples edges; a sheared one such as (u, v + 2u),
 whose quad centres are square centres too, reaches into other squares); of the passing bases the
-shortest is taken. The board then grows, first ring-at-once while it looks flat: a
-homography fitted to the grid so far predicts every cell up to the grid's own extent beyond it,
-and the free corners within 0.3 of the shorter lattice step of a prediction that pass the image
-test join where they connect to the grid along rows and columns (a 9 x 9 board fills in ~3 such
-rounds; a fit off by more than 5 % of a step anywhere, as under lens distortion, stops this).
-Then position by position: each empty neighbour of the grid is predicted from the grid (along a
-row or column from the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from
-parallelograms with diagonal neighbours; the median of the predictions), and the nearest free
-corner within 0.3 of the shorter local lattice step is taken if it passes the image test. When nothing more can be
-added, growth may jump over one missing position along a row or column (a hole, not the end of the
+shortest is taken. The board then grows, first ring-at-once while it looks flat: a homography
+fitted to the grid so far predicts every cell up to the grid's own extent beyond it, and the free
+corners within 0.3 of the shorter lattice step of a prediction that pass the image test join where
+they connect to the grid along rows and columns (a 9 x 9 board fills in ~3 such rounds; a fit off
+by more than 5 % of a step anywhere, as under lens distortion, stops this). Then position by
+position: each empty neighbour of the grid is predicted from the grid (along a row or column from
+the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms with
+diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of the
+shorter local lattice step is taken if it passes the image test. When nothing more can be added,
+growth may jump over one missing position along a row or column (a hole, not the end of the
 board). Corners left with fewer than two row/column neighbours are then dropped (lone points on the
 outline), and so is an outermost row or column that is a stub of the line inside it (at most 0.3 of
-its length) unless the frame cuts it (clutter continuing the pattern beyond an edge). A grid of at least 3 x 3 positions and 8 corners is a board; its corners are removed and
+its length) unless the frame cuts it (clutter continuing the pattern beyond an edge). A grid of at
+least 3 x 3 positions and 8 corners is a board; its corners are removed and
 the search repeats for further boards. Corners in no board are dropped. Local predictions make this
 tolerant of perspective and strong radial/fisheye distortion.
 
@@ -422,8 +423,7 @@ class _Grower:
         the frame cuts keeps its corners."""
         filled = self.idx >= 0
         drop = np.zeros_like(filled)
-        for grid, mask in ((filled, drop), (filled.T, drop.T)):  # rows, then columns (views)
-            pos = self.pos if grid is filled else self.pos.transpose(1, 0, 2)
+        for grid, mask, pos in ((filled, drop, self.pos), (filled.T, drop.T, self.pos.transpose(1, 0, 2))):  # rows, columns
             lines = np.nonzero(grid.any(1))[0]
             if len(lines) < 3:
                 continue
