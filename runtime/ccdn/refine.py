@@ -192,10 +192,14 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
     small = max(3, -(-radius // scale) + 1)  # the fine window on the shrunk frame, and a pixel for the peaks' rounding
     rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 5, max_shift / scale)
     rough = (rough.astype(np.float64) + 0.5) * scale - 0.5
-    fine, ok_fine = refine_saddle_points(gray, np.where(ok[:, None], rough, start), radius, 0.4 * radius,
-                                         max_shift=max_shift)
-    ok = ok_fine & (np.hypot(*(fine - start).T) <= max_shift)
-    return np.where(ok[:, None], fine, start).astype(np.float32), ok
+    refined = start.astype(np.float32)
+    fine, ok_fine = refine_saddle_points(gray, rough[ok], radius, 0.4 * radius, max_shift=max_shift)
+    ok_fine &= np.hypot(*(fine - start[ok]).T) <= max_shift
+    converged = np.nonzero(ok)[0][ok_fine]
+    refined[converged] = fine[ok_fine]
+    ok[:] = False
+    ok[converged] = True
+    return refined, ok
 
 
 def refine_cornersubpix(gray: np.ndarray, xy: np.ndarray, radius: int = 4, max_shift: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
