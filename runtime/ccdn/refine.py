@@ -184,8 +184,9 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
                        max_shift: float) -> tuple[np.ndarray, np.ndarray]:
     """Saddle points of gray for peaks xy (N, 2) found on `shrunk` (gray reduced `scale` times): the
     rough pass on the shrunk frame itself (a 1/scale^2 of the pixels to smooth and fit), then the
-    fine pass on gray; corners may move max_shift px (gray's) from the peaks. Returns refined xy
-    (N, 2) float32 in gray's pixels and a converged mask (N,) bool."""
+    fine pass on gray for the peaks that converged there (no saddle at the coarse scale: clutter);
+    corners may move max_shift px (gray's) from the peaks. Returns refined xy (N, 2) float32 in
+    gray's pixels (the peaks' own where not converged) and a converged mask (N,) bool."""
     start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in gray's pixels
     if len(xy) == 0:
         return start.astype(np.float32), np.zeros(0, bool)
