@@ -76,8 +76,8 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
 
 _RING_ANGLES = np.arange(16) * (2 * np.pi / 16)
 _RING_COS, _RING_SIN = np.cos(_RING_ANGLES), np.sin(_RING_ANGLES)
-_RING_HARMONICS = np.stack([np.cos(_RING_ANGLES), np.sin(_RING_ANGLES), np.cos(2 * _RING_ANGLES),
-                            np.sin(2 * _RING_ANGLES)], 1)  # (16, 4); zero-mean, so the ring's mean drops out
+_RING_HARMONICS = np.stack([_RING_COS, _RING_SIN, np.cos(2 * _RING_ANGLES), np.sin(2 * _RING_ANGLES)],
+                           1)  # (16, 4); zero-mean, so the ring's mean drops out
 
 
 def x_like(gray: np.ndarray, xy: np.ndarray, spacing: np.ndarray) -> np.ndarray:
@@ -91,4 +91,3 @@ def x_like(gray: np.ndarray, xy: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     harmonics = ring @ _RING_HARMONICS / 8  # (N, 4): cos, sin parts of the 1st and 2nd harmonic
     first, second = np.hypot(harmonics[:, 0], harmonics[:, 1]), np.hypot(harmonics[:, 2], harmonics[:, 3])
     return (second > first) & (second > MIN_CONTRAST)
-

@@ -272,12 +272,14 @@ class _Grower:
         exceeds FLAT_RESIDUAL of the shorter step (lens distortion: the local rounds of grow()
         take over). A 9 x 9 board fills in 3 rounds instead of ~12 local ones."""
         while True:
+            free = np.nonzero(self.free)[0]
+            if len(free) == 0:
+                return
             filled = np.argwhere(self.idx >= 0)
             grid = (filled - self.origin)[:, ::-1].astype(np.float64)  # (col, row), like (x, y)
             points = self.pos[filled[:, 0], filled[:, 1]]
             homography, _ = cv2.findHomography(grid, points, 0)
-            free = np.nonzero(self.free)[0]
-            if homography is None or len(free) == 0 or abs(np.linalg.det(homography)) < 1e-12:
+            if homography is None or abs(np.linalg.det(homography)) < 1e-12:
                 return
             fitted, u, v = _project_with_steps(homography, grid)
             if (np.linalg.norm(fitted - points, axis=1) > FLAT_RESIDUAL * _shorter(u, v)).any():
@@ -314,11 +316,10 @@ class _Grower:
         h, w = self.gray.shape
         ok = (np.isfinite(tol) & (preds[:, 0] >= 0) & (preds[:, 0] <= w - 1) & (preds[:, 1] >= 0)
               & (preds[:, 1] <= h - 1))
-        cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
         # the image test at the predictions first: a saddle fit costs ~30x more, and around a board
         # most predictions fall on its margin, where no quads alternate
-        plausible = self._accepts(cells, preds, u, v)
-        cells, preds, tol, u, v = cells[plausible], preds[plausible], tol[plausible], u[plausible], v[plausible]
+        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok])
+        cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
         if len(cells) == 0:
             return False
         radius = window_for_spacing(float(np.median(tol)) / TOLERANCE)
@@ -346,7 +347,7 @@ class _Grower:
     def _support(self, cells: np.ndarray):
         """Predictions, tolerances (TOLERANCE x the shorter local step) and steps u, v for cells."""
         u, v = self._axes(cells)
-        tol = TOLERANCE * np.minimum(np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1))
+        tol = TOLERANCE * _shorter(u, v)
         preds = self._predict(cells)
         tol[~np.isfinite(preds).all(1)] = np.nan
         return preds, tol, u, v
