@@ -132,6 +132,26 @@ def test_coarse_to_fine_finds_the_same_corners_as_full_resolution(examples):
     assert max(errors[0]) < 0.5 and np.mean(errors[0]) < np.mean(errors[1]) + 0.02
 
 
+def test_a_vga_frame_with_big_squares_is_detected_on_the_halved_frame(examples):
+    coarse = ccdn.Detector(threads=2).detect(examples["board"]["path"])  # squares ~24 px: 12 px halved
+    full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(examples["board"]["path"])
+    assert coarse.timings_ms["network"] < 0.6 * full.timings_ms["network"]
+    assert len(coarse) == len(full) == 54
+    assert max(nearest_distances(coarse.xy, full.xy)) < 0.01  # refined on the same full-size pixels
+
+
+def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(examples):
+    import cv2
+
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    frame = np.full_like(gray, int(np.median(gray)))
+    frame[150:342, 200:456] = cv2.resize(gray, (256, 192), interpolation=cv2.INTER_AREA)  # ~10 px squares
+    coarse = ccdn.Detector(threads=2).detect(frame)
+    full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(frame)
+    assert len(full) >= 50
+    assert np.array_equal(coarse.xy, full.xy)
+
+
 def test_big_frames_run_in_strips_that_stitch_to_the_whole_frame_scores(detector, examples):
     import cv2
 

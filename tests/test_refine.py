@@ -68,3 +68,15 @@ def test_peaks_of_a_halved_frame_refine_on_it_first_then_to_the_exact_corners(cl
     refined, ok = refine_from_shrunk(image, half, peaks, 2, 3, 4.0)
     assert ok.mean() > 0.95
     assert np.linalg.norm(refined[ok] - clean_scene.corners[ok], axis=1).mean() < 0.05
+
+
+def test_peaks_whose_fit_fails_on_the_halved_frame_still_get_the_full_size_fit(clean_scene):
+    """The shrunk frame's fit can fail where the full frame's does not (an occluder's edge next to
+    the corner, glare): such peaks are fitted on the full frame from the peak itself. Here the
+    halved frame is blank, so every rough fit fails."""
+    image = clean_scene.image
+    blank = np.full((image.shape[0] // 2, image.shape[1] // 2), 128, np.uint8)
+    peaks = np.rint((clean_scene.corners + 0.5) / 2 - 0.5).astype(np.int32)  # within a pixel at full size
+    refined, ok = refine_from_shrunk(image, blank, peaks, 2, 3, 4.0)
+    assert ok.mean() > 0.9
+    assert np.linalg.norm(refined[ok] - clean_scene.corners[ok], axis=1).mean() < 0.05

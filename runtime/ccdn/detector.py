@@ -4,10 +4,14 @@ Refinement is the saddle fit (ccdn.refine); on noisy frames (ccdn.edges.image_no
 grey levels) the corners of the boards found are then moved onto their edge lines (ccdn.edges),
 which averages the noise over whole edges.
 
-Large frames go coarse-to-fine: the network first runs on the frame halved (a quarter of the
-pixels); when that finds a board whose squares are big enough to be seen at half size, its corners
-are refined on the full-resolution image and the full-size pass is skipped; otherwise (small
-squares, no board) the full-resolution pass runs as usual.
+Frames go coarse-to-fine: the network first runs on the frame shrunk by the largest power of two
+that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved, a quarter of the pixels;
+2000x1500: quartered, then halved). When the score peaks there lie at least COARSE_MIN_SQUARE px
+apart and the pass finds boards whose squares are that big on the shrunk frame, their corners are
+refined on the full-resolution image and the finer passes are skipped; otherwise the next finer
+pass runs, down to the full frame. Small squares and frames without a board therefore pay for the
+shrunk passes (about a third more network time), and a board too small to be seen shrunk is lost
+when another board in the same frame has squares big enough (measured in benchmarks/; README).
 """
 
 from __future__ import annotations
@@ -29,8 +33,8 @@ from .session import ScoreSession
 
 ImageInput = str | os.PathLike | np.ndarray
 FILTERS = ("grid", "kmeans", "none")
-COARSE_MIN_SIDE = 1200  # frames whose shorter side is at least this try the half-size pass first
-COARSE_MIN_SQUARE = 12.0  # px at half size: smaller squares go to the full-resolution pass
+COARSE_MIN_SIDE = 240  # px: the shorter side of a frame shrunk for a coarse pass, at least
+COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
 PAPER_THRESHOLD = (0.5, 0.3)  # the paper's half of the maximum (and a floor), for the other filters
 
@@ -48,7 +52,8 @@ class Detector:
     filter: how false corners are removed: "grid" keeps corners that form a checkerboard (ccdn.grid,
     the default), "kmeans" is the paper's k-means++ clustering, "none" keeps every peak.
     refinement: "saddle" (default), "cornersubpix" or "none" (integer peaks, as in the paper).
-    coarse_to_fine: try a half-size pass first on large frames (see the module docstring).
+    coarse_to_fine: try passes on the frame shrunk first (see the module docstring); only with the
+    grid filter, whose boards tell whether a shrunk pass saw enough, and a sub-pixel refinement.
     detect() is thread-safe: one Detector may serve several threads.
     """
 
@@ -86,10 +91,13 @@ class Detector:
         gray = self.load(image)
         clock.lap("load")
         xy = values = found = None
-        if self.coarse_to_fine and min(gray.shape) >= COARSE_MIN_SIDE:
-            xy, values, found = self._coarse(gray, boards, board_size, clock)
+        coarse = self.coarse_to_fine and self.filter == "grid" and self.refinement != "none"
+        for scale in _coarse_scales(gray.shape) if coarse else ():
+            xy, values, found = self._coarse(gray, scale, boards, board_size, clock)
+            if xy is not None:
+                break
         if xy is None:
-            xy, values, found = self._corners(gray, gray, 1, boards, board_size, clock)
+            xy, values, found = self._corners(gray, gray, 1, *self._peaks(gray, clock), boards, board_size, clock)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]),
                          f"{self.model.name} {self.model.version}", found, clock.laps)
 
@@ -97,16 +105,20 @@ class Detector:
         """The network's raw (H, W) float32 score map, for inspection."""
         return self._session.scores(self.load(image))
 
-    def _coarse(self, gray: np.ndarray, boards: bool, board_size, clock: _Clock):
-        """The half-size pass; (None, None, None) when its boards' squares are too small to trust."""
-        small = cv2.resize(gray, (gray.shape[1] // 2, gray.shape[0] // 2), interpolation=cv2.INTER_AREA)
-        xy, values, found = self._corners(gray, small, 2, boards, board_size, clock)
-        if len(xy) < 9 or _median_spacing(xy) / 2 < COARSE_MIN_SQUARE:
+    def _coarse(self, gray: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
+        """The pass on gray shrunk `scale` times; (None, None, None) when the squares are too small
+        to trust there (judged first on the peaks, before any refinement, then on the corners found)."""
+        small = cv2.resize(gray, (gray.shape[1] // scale, gray.shape[0] // scale), interpolation=cv2.INTER_AREA)
+        score, xy, values = self._peaks(small, clock)
+        if len(xy) < 9 or _median_spacing(xy) < COARSE_MIN_SQUARE:
+            return None, None, None
+        xy, values, found = self._corners(gray, small, scale, score, xy, values, boards, board_size, clock)
+        if len(xy) < 9 or _median_spacing(xy) / scale < COARSE_MIN_SQUARE:
             return None, None, None
         return xy, values, found
 
-    def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
-        """Network on `frame` (gray shrunk by `scale`), then peaks, filter and refinement on gray."""
+    def _peaks(self, frame: np.ndarray, clock: _Clock):
+        """The network's score map on `frame`, and its peaks (xy, values) after the filter."""
         score = self._session.scores(frame)
         clock.lap("network")
         xy, values = find_peaks(score, self.relative, self.floor)
@@ -114,6 +126,12 @@ class Detector:
             keep = kmeans_outliers(xy)
             xy, values = xy[keep], values[keep]
         clock.lap("peaks")
+        return score, xy, values
+
+    def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, score: np.ndarray, xy: np.ndarray,
+                 values: np.ndarray, boards: bool, board_size, clock: _Clock):
+        """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`) refined on gray, then
+        the boards they form."""
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
         radius = window_for_spacing(_median_spacing(start)) if len(start) > 1 else 3
         if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
@@ -180,6 +198,16 @@ def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board,
     new_index[keep] = np.arange(len(keep))
     boards = tuple(dataclasses.replace(b, corner_index=new_index[b.corner_index]) for b in boards)
     return xy[keep], values[keep], boards
+
+
+def _coarse_scales(shape: tuple[int, ...]) -> list[int]:
+    """The shrink factors of the coarse passes for a frame, coarsest first: powers of two that leave
+    its shorter side at least COARSE_MIN_SIDE (640x480: [2]; 2000x1500: [4, 2])."""
+    scales, scale = [], 2
+    while min(shape) // scale >= COARSE_MIN_SIDE:
+        scales.append(scale)
+        scale *= 2
+    return scales[::-1]
 
 
 def _median_spacing(xy: np.ndarray) -> float:

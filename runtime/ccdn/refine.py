@@ -184,7 +184,8 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
                        max_shift: float) -> tuple[np.ndarray, np.ndarray]:
     """Saddle points of gray for peaks xy (N, 2) found on `shrunk` (gray reduced `scale` times): the
     rough pass on the shrunk frame itself (a 1/scale^2 of the pixels to smooth and fit), then the
-    fine pass on gray for the peaks that converged there (no saddle at the coarse scale: clutter);
+    fine pass on gray, from the rough position where the rough pass converged and from the peak
+    where it did not (e.g. an occluder's edge next to the corner spoils the shrunk frame's fit);
     corners may move max_shift px (gray's) from the peaks. Returns refined xy (N, 2) float32 in
     gray's pixels (the peaks' own where not converged) and a converged mask (N,) bool."""
     start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in gray's pixels
@@ -192,15 +193,10 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
         return start.astype(np.float32), np.zeros(0, bool)
     small = max(3, -(-radius // scale) + 1)  # the fine window on the shrunk frame, and a pixel for the peaks' rounding
     rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 5, max_shift / scale)
-    rough = (rough.astype(np.float64) + 0.5) * scale - 0.5
-    refined = start.astype(np.float32)
-    fine, ok_fine = refine_saddle_points(gray, rough[ok], radius, 0.4 * radius, max_shift=max_shift)
-    ok_fine &= np.hypot(*(fine - start[ok]).T) <= max_shift
-    converged = np.nonzero(ok)[0][ok_fine]
-    refined[converged] = fine[ok_fine]
-    ok[:] = False
-    ok[converged] = True
-    return refined, ok
+    begin = np.where(ok[:, None], (rough.astype(np.float64) + 0.5) * scale - 0.5, start)
+    fine, ok = refine_saddle_points(gray, begin, radius, 0.4 * radius, max_shift=max_shift)
+    ok &= np.hypot(*(fine - start).T) <= max_shift
+    return np.where(ok[:, None], fine, start).astype(np.float32), ok
 
 
 def refine_cornersubpix(gray: np.ndarray, xy: np.ndarray, radius: int = 4, max_shift: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
