@@ -34,7 +34,8 @@ from .session import ScoreSession
 ImageInput = str | os.PathLike | np.ndarray
 FILTERS = ("grid", "kmeans", "none")
 COARSE_MIN_SIDE = 240  # px: the shorter side of a frame shrunk for a coarse pass, at least
-COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass
+COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass (chosen on the
+# stress renders: at 7 their figures stay those of the full-resolution pass)
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
 PAPER_THRESHOLD = (0.5, 0.3)  # the paper's half of the maximum (and a floor), for the other filters
 
