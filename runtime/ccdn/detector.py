@@ -54,7 +54,8 @@ class Detector:
     the default), "kmeans" is the paper's k-means++ clustering, "none" keeps every peak.
     refinement: "saddle" (default), "cornersubpix" or "none" (integer peaks, as in the paper).
     coarse_to_fine: try passes on the frame shrunk first (see the module docstring); only with the
-    grid filter, whose boards tell whether a shrunk pass saw enough, and a sub-pixel refinement.
+    grid filter, whose boards tell whether a shrunk pass saw enough, and a sub-pixel refinement
+    (the attribute says whether it applies).
     detect() is thread-safe: one Detector may serve several threads.
     """
 
@@ -71,7 +72,7 @@ class Detector:
         self.floor = default_floor if floor is None else floor
         self.filter = filter
         self.refinement = refinement
-        self.coarse_to_fine = coarse_to_fine
+        self.coarse_to_fine = coarse_to_fine and filter == "grid" and refinement != "none"
         self.max_pixels = max_pixels
 
     def load(self, image: ImageInput) -> np.ndarray:
@@ -92,8 +93,7 @@ class Detector:
         gray = self.load(image)
         clock.lap("load")
         xy = values = found = None
-        coarse = self.coarse_to_fine and self.filter == "grid" and self.refinement != "none"
-        for scale in _coarse_scales(gray.shape) if coarse else ():
+        for scale in _coarse_scales(gray.shape) if self.coarse_to_fine else ():
             xy, values, found = self._coarse(gray, scale, boards, board_size, clock)
             if xy is not None:
                 break
@@ -110,31 +110,33 @@ class Detector:
         """The pass on gray shrunk `scale` times; (None, None, None) when the squares are too small
         to trust there (judged first on the peaks, before any refinement, then on the corners found)."""
         small = cv2.resize(gray, (gray.shape[1] // scale, gray.shape[0] // scale), interpolation=cv2.INTER_AREA)
-        score, xy, values = self._peaks(small, clock)
-        if len(xy) < 9 or _median_spacing(xy) < COARSE_MIN_SQUARE:
+        score, xy, values, spacing = self._peaks(small, clock)
+        if len(xy) < 9 or spacing < COARSE_MIN_SQUARE:
             return None, None, None
-        xy, values, found = self._corners(gray, small, scale, score, xy, values, boards, board_size, clock)
+        xy, values, found = self._corners(gray, small, scale, score, xy, values, spacing, boards, board_size, clock)
         if len(xy) < 9 or _median_spacing(xy) / scale < COARSE_MIN_SQUARE:
             return None, None, None
         return xy, values, found
 
     def _peaks(self, frame: np.ndarray, clock: _Clock):
-        """The network's score map on `frame`, and its peaks (xy, values) after the filter."""
+        """The network's score map on `frame`, its peaks (xy, values) after the filter and their
+        median spacing in frame pixels (0 with fewer than two)."""
         score = self._session.scores(frame)
         clock.lap("network")
         xy, values = find_peaks(score, self.relative, self.floor)
         if self.filter == "kmeans" and len(xy):
             keep = kmeans_outliers(xy)
             xy, values = xy[keep], values[keep]
+        spacing = _median_spacing(xy) if len(xy) > 1 else 0.0
         clock.lap("peaks")
-        return score, xy, values
+        return score, xy, values, spacing
 
     def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, score: np.ndarray, xy: np.ndarray,
-                 values: np.ndarray, boards: bool, board_size, clock: _Clock):
-        """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`) refined on gray, then
-        the boards they form."""
+                 values: np.ndarray, spacing: float, boards: bool, board_size, clock: _Clock):
+        """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `spacing` theirs, in
+        frame pixels) refined on gray, then the boards they form."""
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
-        radius = window_for_spacing(_median_spacing(start)) if len(start) > 1 else 3
+        radius = window_for_spacing(spacing * scale)
         if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
             refined, ok = refine_from_shrunk(gray, frame, xy, scale, radius, 2.0 * scale)
         else:
