@@ -140,6 +140,21 @@ def test_a_vga_frame_with_big_squares_is_detected_on_the_halved_frame(examples):
     assert max(nearest_distances(coarse.xy, full.xy)) < 0.01  # refined on the same full-size pixels
 
 
+def test_a_vga_frame_with_squares_of_48_px_is_detected_on_the_quartered_frame_alone(examples):
+    import cv2
+
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    big = cv2.resize(gray[240:480, 200:520], (640, 480), interpolation=cv2.INTER_CUBIC)  # the board, doubled
+    truth = (examples["board"]["corners"] - [200, 240] + 0.5) * 2 - 0.5
+    detector = ccdn.Detector(threads=2)
+    shapes = []
+    network = detector._session.scores
+    detector._session.scores = lambda frame, *args, **kwargs: shapes.append(frame.shape) or network(frame, *args, **kwargs)
+    coarse = detector.detect(big)
+    assert shapes == [(120, 160)]  # squares of ~12 px there: no finer pass
+    assert len(coarse) == 54 and max(nearest_distances(coarse.xy, truth)) < 0.2
+
+
 def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(examples):
     import cv2
 

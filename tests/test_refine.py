@@ -82,6 +82,24 @@ def test_peaks_whose_fit_fails_on_the_halved_frame_still_get_the_full_size_fit(c
     assert np.linalg.norm(refined[ok] - clean_scene.corners[ok], axis=1).mean() < 0.05
 
 
+def test_corners_at_the_frame_edge_refine_from_a_halved_frame_without_bias(clean_scene):
+    """The rough pass on the shrunk frame skips the edge refits (at_edges=False); the fine pass's own
+    must still bring corners 2-3 px from the frame's top and left edges to the exact corner."""
+    errors = []
+    for corner in clean_scene.corners[::5]:
+        x0, y0 = (int(np.floor(v)) - 2 for v in corner)
+        if min(x0, y0) < 0:
+            continue
+        image = clean_scene.image[y0:, x0:]
+        half = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        peak = np.rint((corner - [x0, y0] + 0.5) / 2 - 0.5)[None].astype(np.int32)
+        refined, ok = refine_from_shrunk(image, half, peak, 2, 4, 4.0)
+        assert ok[0]
+        errors.append(np.linalg.norm(refined[0] - (corner - [x0, y0])))
+    assert len(errors) >= 5
+    assert np.mean(errors) < 0.1 and np.max(errors) < 0.25
+
+
 def test_the_window_stays_small_on_big_squares_where_a_wide_one_is_worse():
     """The window follows the blur, not the square (window_for_spacing's measurement): on renders of
     the training distribution with squares >= 55 px, the rule's 4 px window beats the 6 px one that

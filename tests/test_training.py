@@ -110,7 +110,9 @@ def test_motion_blur_keeps_the_labels_on_the_corners():
 
 @pytest.mark.parametrize("arch", ["paper", "fast"])
 def test_onnx_export_matches_pytorch(arch):
-    """Tolerance 1e-4 absolute on scores of order 1 (float32 convolution order differs)."""
+    """Tolerance 1e-4 absolute on scores of order 1 (float32 convolution order differs). Seeded: an
+    unlucky paper init can leave the output ReLU dead (all zeros), as it did once in a full run."""
+    torch.manual_seed(0)
     model = ARCHITECTURES[arch]()
     model.reset_parameters_paper()
     model.eval()

@@ -5,8 +5,8 @@ grey levels) the corners of the boards found are then moved onto their edge line
 which averages the noise over whole edges.
 
 Frames go coarse-to-fine: the network first runs on the frame shrunk by the largest power of two
-that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved, a quarter of the pixels;
-2000x1500: quartered, then halved). When the score peaks there lie at least COARSE_MIN_SQUARE px
+that leaves its shorter side >= COARSE_MIN_SIDE (640x480: quartered, then halved; 2000x1500: 8x,
+4x, then 2x). When the score peaks there lie at least COARSE_MIN_SQUARE px
 apart and the pass finds boards whose squares are that big on the shrunk frame, their corners are
 refined on the full-resolution image and the finer passes are skipped; otherwise the next finer
 pass runs, down to the full frame. Small squares and frames without a board therefore pay for the
@@ -33,7 +33,8 @@ from .session import ScoreSession
 
 ImageInput = str | os.PathLike | np.ndarray
 FILTERS = ("grid", "kmeans", "none")
-COARSE_MIN_SIDE = 240  # px: the shorter side of a frame shrunk for a coarse pass, at least
+COARSE_MIN_SIDE = 120  # px: the shorter side of a frame shrunk for a coarse pass, at least (measured: 90
+# adds a 16x pass at 2000x1500 that never finds the board there)
 COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass (chosen on the
 # stress renders: at 7 their figures stay those of the full-resolution pass)
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
@@ -205,7 +206,7 @@ def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board,
 
 def _coarse_scales(shape: tuple[int, ...]) -> list[int]:
     """The shrink factors of the coarse passes for a frame, coarsest first: powers of two that leave
-    its shorter side at least COARSE_MIN_SIDE (640x480: [2]; 2000x1500: [4, 2])."""
+    its shorter side at least COARSE_MIN_SIDE (640x480: [4, 2]; 2000x1500: [8, 4, 2])."""
     scales, scale = [], 2
     while min(shape) // scale >= COARSE_MIN_SIDE:
         scales.append(scale)

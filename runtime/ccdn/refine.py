@@ -66,9 +66,11 @@ def _quadric(radius: int) -> _Quadric:
 
 def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigma: float = 1.2,
                          iterations: int = 3, max_shift: float = 2.0, min_saddle: float = 0.5,
-                         wide: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                         wide: int = 0, at_edges: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Refine integer peaks xy (N, 2) to sub-pixel saddle points of the smoothed image; `wide` >
-    radius: a first pass with that window radius (module docstring).
+    radius: a first pass with that window radius (module docstring); at_edges: fit the corners whose
+    window the frame's edge cuts again with a smaller one (a rough pass whose result a fine pass
+    refits may skip this).
 
     Returns refined xy (N, 2) float32 and a converged mask (N,) bool.
     """
@@ -105,6 +107,8 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     # a window cut by the frame's edge is lopsided, which biases the fit (measured: 0.7-1.4 px at
     # 1-3 px from the edge): such corners are fitted again with the largest window that fits (>= 2)
     refined = np.where(ok[:, None], refined, start)
+    if not at_edges:
+        return refined.astype(np.float32), ok
     edge = np.floor(np.minimum(np.minimum(refined[:, 0], w - 1 - refined[:, 0]),
                                np.minimum(refined[:, 1], h - 1 - refined[:, 1]))).astype(np.int64)
     # one call per window and frame side: each smooths a strip along its side, not the whole frame
@@ -195,7 +199,7 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
     if len(xy) == 0:
         return start.astype(np.float32), np.zeros(0, bool)
     small = max(3, -(-radius // scale) + 1)  # the fine window on the shrunk frame, and a pixel for the peaks' rounding
-    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 5, max_shift / scale)
+    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 5, max_shift / scale, at_edges=False)
     begin = np.where(ok[:, None], (rough.astype(np.float64) + 0.5) * scale - 0.5, start)
     fine, ok = refine_saddle_points(gray, begin, radius, 0.4 * radius, max_shift=max_shift)
     ok &= np.hypot(*(fine - start).T) <= max_shift
