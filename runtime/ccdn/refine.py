@@ -66,11 +66,9 @@ def _quadric(radius: int) -> _Quadric:
 
 def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigma: float = 1.2,
                          iterations: int = 3, max_shift: float = 2.0, min_saddle: float = 0.5,
-                         wide: int = 0, at_edges: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                         wide: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Refine integer peaks xy (N, 2) to sub-pixel saddle points of the smoothed image; `wide` >
-    radius: a first pass with that window radius (module docstring); at_edges: fit the corners whose
-    window the frame's edge cuts again with a smaller one (a rough pass whose result a fine pass
-    refits may skip this).
+    radius: a first pass with that window radius (module docstring).
 
     Returns refined xy (N, 2) float32 and a converged mask (N,) bool.
     """
@@ -83,7 +81,7 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     n = len(xy)
     if n == 0:
         return np.zeros((0, 2), np.float32), np.zeros(0, bool)
-    smooth, origin = _smoothed_region(gray, xy, sigma, radius * (iterations + 1))
+    smoothed = _smoothed_around(gray, xy, sigma, radius * (iterations + 1))
     h, w = gray.shape
     quadric = _quadric(radius)
     start = xy.astype(np.float64)
@@ -91,14 +89,14 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     offset = np.zeros((n, 2))
     ok = np.ones(n, bool)
     for _ in range(iterations):  # whole-pixel steps to the saddle's pixel
-        offset, ok = _fit(smooth, centre - origin, quadric, min_saddle)
+        offset, ok = _fit(smoothed, centre, quadric, min_saddle)
         step = np.rint(np.clip(np.where(ok[:, None], offset, 0), -radius, radius)).astype(np.int64)
         if not step.any():
             break
         centre = centre + step
     refined = centre + offset
     for _ in range(SUBPIXEL_ITERATIONS):  # re-fit centred on the estimate: the fit is least biased there
-        again, ok_again = _fit(smooth, refined - origin, quadric, min_saddle)
+        again, ok_again = _fit(smoothed, refined, quadric, min_saddle)
         move = ok & ok_again & np.all(np.abs(again) <= 0.5, 1)
         refined = np.where(move[:, None], refined + again, refined)
         offset = np.where(move[:, None], refined - centre, offset)
@@ -107,8 +105,6 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     # a window cut by the frame's edge is lopsided, which biases the fit (measured: 0.7-1.4 px at
     # 1-3 px from the edge): such corners are fitted again with the largest window that fits (>= 2)
     refined = np.where(ok[:, None], refined, start)
-    if not at_edges:
-        return refined.astype(np.float32), ok
     edge = np.floor(np.minimum(np.minimum(refined[:, 0], w - 1 - refined[:, 0]),
                                np.minimum(refined[:, 1], h - 1 - refined[:, 1]))).astype(np.int64)
     # one call per window and frame side: each smooths a strip along its side, not the whole frame
@@ -123,18 +119,22 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     return np.where(ok[:, None], refined, start).astype(np.float32), ok
 
 
-def _fit(smooth: np.ndarray, centre: np.ndarray, quadric: _Quadric, min_saddle: float) -> tuple[np.ndarray, np.ndarray]:
-    """One quadric fit around each centre (N, 2) in smooth's coordinates (sub-pixel centres are
-    sampled bilinearly): the offsets (N, 2) to the stationary points and whether each is a saddle.
-    Patches reaching off the image are fitted on their pixels inside it (the region's edges are
-    the image's wherever a patch can reach them), so corners at the frame's edge refine too."""
-    h, w = smooth.shape
+def _fit(smoothed: _Smoothed, centre: np.ndarray, quadric: _Quadric, min_saddle: float) -> tuple[np.ndarray, np.ndarray]:
+    """One quadric fit around each centre (N, 2) (frame pixels; sub-pixel centres are sampled
+    bilinearly): the offsets (N, 2) to the stationary points and whether each is a saddle.
+    Patches reaching off the frame are fitted on their pixels inside it, so corners at the frame's
+    edge refine too."""
+    h, w = smoothed.frame_shape
     mx, my = centre[:, 0:1] + quadric.ox[None], centre[:, 1:2] + quadric.oy[None]
+    sx, sy = mx - smoothed.shift[:, 0:1], my - smoothed.shift[:, 1:2]  # in the smoothed image
+    lo, hi = smoothed.low, smoothed.high
     if centre.dtype.kind == "i":
-        values = smooth[np.minimum(np.maximum(my, 0), h - 1), np.minimum(np.maximum(mx, 0), w - 1)]
+        values = smoothed.image[np.minimum(np.maximum(sy, lo[:, 1:2]), hi[:, 1:2]),
+                                np.minimum(np.maximum(sx, lo[:, 0:1]), hi[:, 0:1])]
     else:
-        values = cv2.remap(smooth, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE)
+        sx = np.minimum(np.maximum(sx, lo[:, 0:1]), hi[:, 0:1]).astype(np.float32)  # never into another patch
+        sy = np.minimum(np.maximum(sy, lo[:, 1:2]), hi[:, 1:2]).astype(np.float32)
+        values = cv2.remap(smoothed.image, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     values = values.astype(np.float64)
     coef = values @ quadric.pinv.T  # (N, 6): a, b, c, d, e, g
     inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
@@ -154,16 +154,57 @@ def _fit(smooth: np.ndarray, centre: np.ndarray, quadric: _Quadric, min_saddle: 
     return offset, (det < -min_saddle * min_saddle) & np.all(np.isfinite(offset), 1)
 
 
-def _smoothed_region(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int) -> tuple[np.ndarray, np.ndarray]:
-    """The Gaussian-smoothed (float32) part of gray that fits reaching `reach` px from the points,
-    and its top-left (x, y): smoothing only that part keeps few-corner calls cheap on big frames."""
+@dataclass(frozen=True)
+class _Smoothed:
+    """The Gaussian-smoothed (float32) pixels the fits read: corner k's frame pixel (x, y) is
+    image[y - shift[k, 1], x - shift[k, 0]], within low[k]..high[k] (x, y, inclusive)."""
+
+    image: np.ndarray
+    shift: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    frame_shape: tuple[int, int]
+
+
+def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int) -> _Smoothed:
+    """gray smoothed wherever a fit may read, `reach` px around the points: the region they span, or,
+    when that is larger (corners spread over a big frame), a square patch per point (their
+    pixels only: on a 2000x1500 frame the region cost most of the refinement)."""
     h, w = gray.shape
-    margin = reach + int(np.ceil(4 * sigma)) + 1  # beyond the blur's reach the crop edge cannot matter
-    x0, y0 = (max(int(np.floor(xy[:, k].min())) - margin, 0) for k in (0, 1))
-    x1 = min(int(np.ceil(xy[:, 0].max())) + margin + 1, w)
-    y1 = min(int(np.ceil(xy[:, 1].max())) + margin + 1, h)
-    part = gray[y0:y1, x0:x1].astype(np.float32)
-    return (_blur_inside(part, sigma) if sigma > 0 else part), np.array([x0, y0])
+    margin = int(np.ceil(4 * sigma)) + 1  # beyond the blur's reach the crop edge cannot matter
+    x0, y0 = (max(int(np.floor(xy[:, k].min())) - reach - margin, 0) for k in (0, 1))
+    x1 = min(int(np.ceil(xy[:, 0].max())) + reach + margin + 1, w)
+    y1 = min(int(np.ceil(xy[:, 1].max())) + reach + margin + 1, h)
+    side = 2 * (reach + margin) + 2  # a patch: the reach each way around the rounded point, one pixel for rounding
+    n = len(xy)
+    if 2 * n * side * side >= (x1 - x0) * (y1 - y0):  # a patch pixel, gathered, costs about two of a slice (measured)
+        part = _blur_inside(gray[y0:y1, x0:x1].astype(np.float32), sigma) if sigma > 0 else gray[y0:y1, x0:x1].astype(np.float32)
+        return _Smoothed(part, np.broadcast_to(np.array([x0, y0]), (n, 2)), np.zeros((n, 2), np.int64),
+                         np.broadcast_to(np.array([x1 - x0 - 1, y1 - y0 - 1]), (n, 2)), (h, w))
+    corner = np.floor(xy).astype(np.int64) - reach - margin  # each patch's top-left (x, y) in the frame
+    offsets = np.arange(side)
+    cols, rows = corner[:, 0:1] + offsets, corner[:, 1:2] + offsets  # (N, side) each
+    patches = gray[np.clip(rows, 0, h - 1)[:, :, None], np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float32)
+    col_in, row_in = (cols >= 0) & (cols < w), (rows >= 0) & (rows < h)
+    cut = ~(col_in.all(1) & row_in.all(1))
+    patches[cut] *= (row_in[cut, :, None] & col_in[cut, None, :])
+    stacked = patches.reshape(n * side, side)  # one blur for all: a patch's margin absorbs its neighbours'
+    if sigma > 0:
+        stacked = cv2.GaussianBlur(stacked, (_kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
+        if cut.any():  # normalised convolution where the frame's edge cuts a patch (_blur_inside)
+            kernel = cv2.getGaussianKernel(_kernel_size(sigma), sigma, cv2.CV_32F).reshape(1, -1)
+            row_mass, col_mass = (cv2.filter2D(inside[cut].astype(np.float32), -1, kernel, borderType=cv2.BORDER_CONSTANT)
+                                  for inside in (row_in, col_in))
+            blurred = stacked.reshape(n, side, side)
+            blurred[cut] /= np.maximum(row_mass[:, :, None] * col_mass[:, None, :], 1e-12)
+    shift = corner - np.stack([np.zeros(n, np.int64), np.arange(n) * side], 1)
+    low = np.stack([np.zeros(n, np.int64), np.arange(n) * side], 1)
+    return _Smoothed(stacked, shift, low, low + side - 1, (h, w))
+
+
+def _kernel_size(sigma: float) -> int:
+    """cv2.GaussianBlur's kernel size for sigma: odd, covering +-4 sigma."""
+    return int(round(8 * sigma + 1)) | 1
 
 
 def _blur_inside(part: np.ndarray, sigma: float) -> np.ndarray:
@@ -171,7 +212,7 @@ def _blur_inside(part: np.ndarray, sigma: float) -> np.ndarray:
     or repeating the edge, as usual borders do, would pull a corner near the frame's edge towards
     its mirror image (measured: 1-1.7 px off at 2 px from the edge). The normaliser is separable
     and differs from 1 only within the kernel's reach of an edge, so only those bands are divided."""
-    size = int(round(8 * sigma + 1)) | 1
+    size = _kernel_size(sigma)
     blurred = cv2.GaussianBlur(part, (size, size), sigma, borderType=cv2.BORDER_CONSTANT)
     kernel = cv2.getGaussianKernel(size, sigma, cv2.CV_64F).ravel()
     rows, cols = (_mass_inside(n, kernel) for n in part.shape)
@@ -199,7 +240,7 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
     if len(xy) == 0:
         return start.astype(np.float32), np.zeros(0, bool)
     small = max(3, -(-radius // scale) + 1)  # the fine window on the shrunk frame, and a pixel for the peaks' rounding
-    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 5, max_shift / scale, at_edges=False)
+    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 5, max_shift / scale)
     begin = np.where(ok[:, None], (rough.astype(np.float64) + 0.5) * scale - 0.5, start)
     fine, ok = refine_saddle_points(gray, begin, radius, 0.4 * radius, max_shift=max_shift)
     ok &= np.hypot(*(fine - start).T) <= max_shift
