@@ -83,8 +83,8 @@ def test_peaks_whose_fit_fails_on_the_halved_frame_still_get_the_full_size_fit(c
 
 
 def test_corners_at_the_frame_edge_refine_from_a_halved_frame_without_bias(clean_scene):
-    """The rough pass on the shrunk frame skips the edge refits (at_edges=False); the fine pass's own
-    must still bring corners 2-3 px from the frame's top and left edges to the exact corner."""
+    """Coarse-to-fine at the frame's edge: corners 2-3 px from its top and left edges, from peaks of
+    the halved frame, land on the exact corner."""
     errors = []
     for corner in clean_scene.corners[::5]:
         x0, y0 = (int(np.floor(v)) - 2 for v in corner)
@@ -98,6 +98,28 @@ def test_corners_at_the_frame_edge_refine_from_a_halved_frame_without_bias(clean
         errors.append(np.linalg.norm(refined[0] - (corner - [x0, y0])))
     assert len(errors) >= 5
     assert np.mean(errors) < 0.1 and np.max(errors) < 0.25
+
+
+def test_corners_spread_over_a_big_frame_refine_as_they_do_alone(clean_scene):
+    """Corners far apart on a big frame are smoothed patch by patch (a stacked mosaic), not as one
+    region: the result must be the region's, also where the frame's edge cuts a patch."""
+    image, corners = clean_scene.image, clean_scene.corners
+    h, w = image.shape
+    canvas = np.full((1500, 2000), 128, np.uint8)
+    canvas[:h, :w] = image
+    canvas[-h:, -w:] = image
+    x_cut = int(np.floor(corners[:, 0].min())) - 6  # a copy whose leftmost corner lies 6-7 px from the edge:
+    # its window stays inside the frame, its blur does not
+    canvas[700 : 700 + h, : w - x_cut] = image[:, x_cut:]
+    groups = [corners, corners + [2000 - w, 1500 - h], corners[corners[:, 0].argmin()][None] + [-x_cut, 700]]
+    start = np.rint(np.concatenate(groups)).astype(np.int32)
+    together, ok = refine(canvas, start, "saddle", radius=4)
+    bounds = np.cumsum([0] + [len(g) for g in groups])
+    alone = [refine(canvas, start[a:b], "saddle", radius=4) for a, b in zip(bounds[:-1], bounds[1:])]  # small regions
+    assert np.array_equal(ok, np.concatenate([a[1] for a in alone])) and ok.mean() > 0.95
+    assert np.abs(together - np.concatenate([a[0] for a in alone])).max() < 1e-3
+    truth = np.concatenate(groups)
+    assert np.linalg.norm(together[ok] - truth[ok], axis=1).mean() < 0.1
 
 
 def test_the_window_stays_small_on_big_squares_where_a_wide_one_is_worse():
