@@ -16,7 +16,9 @@ class Sampler:
     """Mean grey level of small boxes, via an integral image (NaN where the centre is off the image)."""
 
     def __init__(self, gray: np.ndarray) -> None:
-        self._integral = cv2.integral(gray, sdepth=cv2.CV_64F).ravel()  # flat: np.take beats 2-D fancy indexing
+        # int32 sums where they cannot overflow (frames up to 8.4 Mpx): a third of float64's time
+        depth = cv2.CV_32S if gray.size * 255 < 2**31 else cv2.CV_64F
+        self._integral = cv2.integral(gray, sdepth=depth).ravel()  # flat: np.take beats 2-D fancy indexing
         self.height, self.width = gray.shape
 
     def contains(self, points: np.ndarray) -> np.ndarray:

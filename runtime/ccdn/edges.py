@@ -30,7 +30,7 @@ from .grid import Board, nanmedian_rows
 
 NOISY_SIGMA = 5.0  # grey levels of image noise from which board corners are refined on their edges
 NOISE_SAMPLE_PIXELS = 1 << 17  # the noise estimate's median is taken over about this many pixels
-_LAPLACIAN_PAIR = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)  # zero on planes; |kernel| = 6
+_LAPLACIAN_PAIR = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]])  # zero on planes; |kernel| = 6
 SMOOTHING = 1.0  # px, Gaussian sigma of the image the profiles are sampled on
 REACH = (0.1, 0.5)  # profiles from this far to this far along each half-edge (x the step to the neighbour)
 PROFILES = 8  # per half-edge
@@ -44,12 +44,17 @@ MAX_MOVE = 1.0  # px from the saddle-fit position; farther and the corner keeps 
 def image_noise(gray: np.ndarray) -> float:
     """Robust estimate of the image noise's standard deviation in grey levels: the median absolute
     response of a kernel that cancels smooth image content (Immerkaer's), scaled to a Gaussian's
-    sigma. Edges and corners are a minority of pixels, so the median ignores them."""
-    if min(gray.shape) < 3:
+    sigma. Edges and corners are a minority of pixels, so the median ignores them. The response is
+    computed only on a strided grid of inner pixels (about NOISE_SAMPLE_PIXELS), not the whole frame."""
+    h, w = gray.shape
+    if min(h, w) < 3:
         return 0.0
-    response = cv2.filter2D(gray, cv2.CV_16S, _LAPLACIAN_PAIR, borderType=cv2.BORDER_REFLECT)
-    step = max(1, int(np.ceil(np.sqrt(gray.size / NOISE_SAMPLE_PIXELS))))  # the median of a strided subsample
-    sample = np.abs(response[::step, ::step]).ravel()
+    step = max(1, int(np.ceil(np.sqrt(gray.size / NOISE_SAMPLE_PIXELS))))
+    response = np.zeros(((h - 3) // step + 1, (w - 3) // step + 1), np.int16)
+    for dr in range(3):
+        for dc in range(3):
+            response += int(_LAPLACIAN_PAIR[dr, dc]) * gray[dr : h - 2 + dr : step, dc : w - 2 + dc : step].astype(np.int16)
+    sample = np.abs(response).ravel()
     counts = np.bincount(sample)  # integer responses: an exact median without sorting
     median = int(np.searchsorted(np.cumsum(counts), (sample.size + 1) / 2))
     return 1.4826 * median / 6.0
