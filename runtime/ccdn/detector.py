@@ -110,7 +110,8 @@ class Detector:
     def _coarse(self, gray: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
         """The pass on gray shrunk `scale` times; (None, None, None) when the squares are too small
         to trust there (judged first on the peaks, before any refinement, then on the corners found)."""
-        small = cv2.resize(gray, (gray.shape[1] // scale, gray.shape[0] // scale), interpolation=cv2.INTER_AREA)
+        h, w = gray.shape  # cropped to a multiple of scale: the shrunk pixels then map exactly onto gray's
+        small = cv2.resize(gray[: h - h % scale, : w - w % scale], (w // scale, h // scale), interpolation=cv2.INTER_AREA)
         score, xy, values, spacing = self._peaks(small, clock)
         if len(xy) < 9 or spacing < COARSE_MIN_SQUARE:
             return None, None, None
