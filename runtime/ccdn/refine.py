@@ -240,7 +240,7 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
     if len(xy) == 0:
         return start.astype(np.float32), np.zeros(0, bool)
     small = max(3, -(-radius // scale) + 1)  # the fine window on the shrunk frame, and a pixel for the peaks' rounding
-    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 5, max_shift / scale)
+    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 3, max_shift / scale)
     begin = np.where(ok[:, None], (rough.astype(np.float64) + 0.5) * scale - 0.5, start)
     fine, ok = refine_saddle_points(gray, begin, radius, 0.4 * radius, max_shift=max_shift)
     ok &= np.hypot(*(fine - start).T) <= max_shift
