@@ -107,14 +107,11 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     refined = np.where(ok[:, None], refined, start)
     edge = np.floor(np.minimum(np.minimum(refined[:, 0], w - 1 - refined[:, 0]),
                                np.minimum(refined[:, 1], h - 1 - refined[:, 1]))).astype(np.int64)
-    # one call per window and frame side: each smooths a strip along its side, not the whole frame
-    side = np.argmin(np.stack([refined[:, 0], w - 1 - refined[:, 0], refined[:, 1], h - 1 - refined[:, 1]], 1), 1)
-    for small in range(2, radius):
-        for nearest_side in range(4):
-            group = (np.clip(edge, 2, radius) == small) & (side == nearest_side)
-            if group.any():
-                refined[group], ok[group] = refine_saddle_points(gray, refined[group], small, 0.4 * small, iterations,
-                                                                 max_shift, min_saddle)
+    for small in range(2, radius):  # one call per window (_smoothed_around smooths only near the corners)
+        group = np.clip(edge, 2, radius) == small
+        if group.any():
+            refined[group], ok[group] = refine_saddle_points(gray, refined[group], small, 0.4 * small, iterations,
+                                                             max_shift, min_saddle)
     ok &= np.hypot(*(refined - start).T) <= max_shift
     return np.where(ok[:, None], refined, start).astype(np.float32), ok
 
