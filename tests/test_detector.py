@@ -140,6 +140,14 @@ def test_a_vga_frame_with_big_squares_is_detected_on_the_halved_frame(examples):
     assert max(nearest_distances(coarse.xy, full.xy)) < 0.01  # refined on the same full-size pixels
 
 
+def _network_frames(detector: ccdn.Detector) -> list[tuple[int, int]]:
+    """The shapes of the frames `detector`'s network runs on, recorded as it detects."""
+    shapes = []
+    network = detector._session.scores
+    detector._session.scores = lambda frame, *args, **kwargs: shapes.append(frame.shape) or network(frame, *args, **kwargs)
+    return shapes
+
+
 def test_a_vga_frame_with_squares_of_48_px_is_detected_on_the_quartered_frame_alone(examples):
     import cv2
 
@@ -147,12 +155,19 @@ def test_a_vga_frame_with_squares_of_48_px_is_detected_on_the_quartered_frame_al
     big = cv2.resize(gray[240:480, 200:520], (640, 480), interpolation=cv2.INTER_CUBIC)  # the board, doubled
     truth = (examples["board"]["corners"] - [200, 240] + 0.5) * 2 - 0.5
     detector = ccdn.Detector(threads=2)
-    shapes = []
-    network = detector._session.scores
-    detector._session.scores = lambda frame, *args, **kwargs: shapes.append(frame.shape) or network(frame, *args, **kwargs)
+    shapes = _network_frames(detector)
     coarse = detector.detect(big)
     assert shapes == [(120, 160)]  # squares of ~12 px there: no finer pass
     assert len(coarse) == 54 and max(nearest_distances(coarse.xy, truth)) < 0.2
+
+
+def test_a_model_with_a_strided_head_starts_coarse_to_fine_at_twice_the_side(examples):
+    """fast resolves corners >= ~5 px apart, not ~3: its first pass at 640x480 is the halved frame
+    (on the quartered one it lost whole second boards)."""
+    detector = ccdn.Detector("fast", threads=2)
+    shapes = _network_frames(detector)
+    assert len(detector.detect(examples["board"]["path"])) == 54
+    assert shapes[0] == (240, 320)
 
 
 def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(examples):
