@@ -5,13 +5,13 @@ grey levels) the corners of the boards found are then moved onto their edge line
 which averages the noise over whole edges.
 
 Frames go coarse-to-fine: the network first runs on the frame shrunk by the largest power of two
-that leaves its shorter side >= COARSE_MIN_SIDE (640x480: quartered, then halved; 2000x1500: 8x,
-4x, then 2x; twice that side for a model with a strided head, e.g. fast). When the score peaks there lie at least COARSE_MIN_SQUARE px
-apart and the pass finds boards whose squares are that big on the shrunk frame, their corners are
-refined on the full-resolution image and the finer passes are skipped; otherwise the next finer
-pass runs, down to the full frame. Small squares and frames without a board therefore pay for the
-shrunk passes (about a third more network time), and a board too small to be seen shrunk is lost
-when another board in the same frame has squares big enough (measured in benchmarks/; README).
+that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x, 4x, then 2x).
+When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass finds boards whose
+squares are that big on the shrunk frame, their corners are refined on the full-resolution image
+and the finer passes are skipped; otherwise the next finer pass runs, down to the full frame. Small
+squares and frames without a board therefore pay for the shrunk passes (about a third more network
+time), and a board too small to be seen shrunk is lost when another board in the same frame has
+squares big enough (measured in benchmarks/; README).
 """
 
 from __future__ import annotations
@@ -33,10 +33,11 @@ from .session import ScoreSession
 
 ImageInput = str | os.PathLike | np.ndarray
 FILTERS = ("grid", "kmeans", "none")
-COARSE_MIN_SIDE = 120  # px: the shorter side of a frame shrunk for a coarse pass, at least (measured: 90
-# adds a 16x pass at 2000x1500 that never finds the board there); twice that for a model with a strided
-# head (input_multiple > 1, e.g. fast: its 4x4-pixel cells resolve corners >= ~5 px apart, not ~3), which
-# at 120 lost whole second boards its quartered frame could not show (stress two-boards 1.7 -> 8.0 % missed)
+COARSE_MIN_SIDE = 160  # px: the shorter side of a frame shrunk for a coarse pass, at least. Measured: 120
+# also quartered 640x480 frames, which found 5 of the 12 latency frames' boards on 160x120 but cost the others a
+# pass, so the median went up (real-dev frames 20.9 -> 22.7 ms, stress renders 27.7 -> 29.2 ms), and the fast
+# model lost whole second boards there (stress two-boards 1.7 -> 8.0 % missed); 240 left 2000x1500 frames at 4x
+# (network 27 vs 7 ms); 90 adds a 16x pass at 2000x1500 that never finds the board there
 COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass (chosen on the
 # stress renders: at 7 their figures stay those of the full-resolution pass)
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
@@ -76,7 +77,6 @@ class Detector:
         self.filter = filter
         self.refinement = refinement
         self.coarse_to_fine = coarse_to_fine and filter == "grid" and refinement != "none"
-        self._coarse_min_side = COARSE_MIN_SIDE * (2 if self._session.multiple > 1 else 1)
         self.max_pixels = max_pixels
 
     def load(self, image: ImageInput) -> np.ndarray:
@@ -97,7 +97,7 @@ class Detector:
         gray = self.load(image)
         clock.lap("load")
         xy = values = found = None
-        for scale in _coarse_scales(gray.shape, self._coarse_min_side) if self.coarse_to_fine else ():
+        for scale in _coarse_scales(gray.shape, COARSE_MIN_SIDE) if self.coarse_to_fine else ():
             xy, values, found = self._coarse(gray, scale, boards, board_size, clock)
             if xy is not None:
                 break
@@ -210,7 +210,7 @@ def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board,
 
 def _coarse_scales(shape: tuple[int, ...], min_side: int) -> list[int]:
     """The shrink factors of the coarse passes for a frame, coarsest first: powers of two that leave
-    its shorter side at least min_side (COARSE_MIN_SIDE: 640x480: [4, 2]; 2000x1500: [8, 4, 2])."""
+    its shorter side at least min_side (COARSE_MIN_SIDE: 640x480: [2]; 2000x1500: [8, 4, 2])."""
     scales, scale = [], 2
     while min(shape) // scale >= min_side:
         scales.append(scale)
