@@ -97,7 +97,7 @@ class Detector:
         gray = self.load(image)
         clock.lap("load")
         xy = values = found = None
-        for scale in _coarse_scales(gray.shape, COARSE_MIN_SIDE) if self.coarse_to_fine else ():
+        for scale in _coarse_scales(gray.shape) if self.coarse_to_fine else ():
             xy, values, found = self._coarse(gray, scale, boards, board_size, clock)
             if xy is not None:
                 break
@@ -208,11 +208,11 @@ def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board,
     return xy[keep], values[keep], boards
 
 
-def _coarse_scales(shape: tuple[int, ...], min_side: int) -> list[int]:
+def _coarse_scales(shape: tuple[int, ...]) -> list[int]:
     """The shrink factors of the coarse passes for a frame, coarsest first: powers of two that leave
-    its shorter side at least min_side (COARSE_MIN_SIDE: 640x480: [2]; 2000x1500: [8, 4, 2])."""
+    its shorter side at least COARSE_MIN_SIDE (640x480: [2]; 2000x1500: [8, 4, 2])."""
     scales, scale = [], 2
-    while min(shape) // scale >= min_side:
+    while min(shape) // scale >= COARSE_MIN_SIDE:
         scales.append(scale)
         scale *= 2
     return scales[::-1]

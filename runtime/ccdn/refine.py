@@ -175,7 +175,8 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     side = 2 * (reach + margin) + 2  # a patch: the reach each way around the rounded point, one pixel for rounding
     n = len(xy)
     if 2 * n * side * side >= (x1 - x0) * (y1 - y0):  # a patch pixel, gathered, costs about two of a slice (measured)
-        part = _blur_inside(gray[y0:y1, x0:x1].astype(np.float32), sigma) if sigma > 0 else gray[y0:y1, x0:x1].astype(np.float32)
+        part = gray[y0:y1, x0:x1].astype(np.float32)
+        part = _blur_inside(part, sigma) if sigma > 0 else part
         return _Smoothed(part, np.broadcast_to(np.array([x0, y0]), (n, 2)), np.zeros((n, 2), np.int64),
                          np.broadcast_to(np.array([x1 - x0 - 1, y1 - y0 - 1]), (n, 2)), (h, w))
     corner = np.floor(xy).astype(np.int64) - reach - margin  # each patch's top-left (x, y) in the frame
