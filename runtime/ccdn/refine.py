@@ -190,9 +190,7 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     if sigma > 0:
         stacked = cv2.GaussianBlur(stacked, (_kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
         if cut.any():  # normalised convolution where the frame's edge cuts a patch (_blur_inside)
-            kernel = cv2.getGaussianKernel(_kernel_size(sigma), sigma, cv2.CV_32F).reshape(1, -1)
-            row_mass, col_mass = (cv2.filter2D(inside[cut].astype(np.float32), -1, kernel, borderType=cv2.BORDER_CONSTANT)
-                                  for inside in (row_in, col_in))
+            row_mass, col_mass = (_mass_inside(inside[cut], sigma) for inside in (row_in, col_in))
             blurred = stacked.reshape(n, side, side)
             blurred[cut] /= np.maximum(row_mass[:, :, None] * col_mass[:, None, :], 1e-12)
     shift = corner - np.stack([np.zeros(n, np.int64), np.arange(n) * side], 1)
@@ -210,20 +208,20 @@ def _blur_inside(part: np.ndarray, sigma: float) -> np.ndarray:
     or repeating the edge, as usual borders do, would pull a corner near the frame's edge towards
     its mirror image (measured: 1-1.7 px off at 2 px from the edge). The normaliser is separable
     and differs from 1 only within the kernel's reach of an edge, so only those bands are divided."""
-    size = _kernel_size(sigma)
-    blurred = cv2.GaussianBlur(part, (size, size), sigma, borderType=cv2.BORDER_CONSTANT)
-    kernel = cv2.getGaussianKernel(size, sigma, cv2.CV_64F).ravel()
-    rows, cols = (_mass_inside(n, kernel) for n in part.shape)
+    blurred = cv2.GaussianBlur(part, (_kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
+    rows, cols = (_mass_inside(np.ones((1, n), bool), sigma)[0] for n in part.shape)
     top, left = np.nonzero(np.abs(rows - 1) > 1e-6)[0], np.nonzero(np.abs(cols - 1) > 1e-6)[0]
     blurred[top] /= rows[top, None]
     blurred[:, left] /= cols[None, left]
     return blurred
 
 
-def _mass_inside(n: int, kernel: np.ndarray) -> np.ndarray:
-    """(n,) float32: the share of a centred 1-D kernel that falls inside 0..n-1 at each position."""
-    half = len(kernel) // 2
-    return np.convolve(np.ones(n), kernel)[half : half + n].astype(np.float32)
+def _mass_inside(inside: np.ndarray, sigma: float) -> np.ndarray:
+    """(K, n) float32: along each of K lines of n pixels (inside: (K, n) bool), the share of the
+    blur's 1-D kernel that falls on inside pixels at each position: the separable normaliser of a
+    blur that averages only pixels inside (a region's edges, or the frame's edge across a patch)."""
+    kernel = cv2.getGaussianKernel(_kernel_size(sigma), sigma, cv2.CV_64F).reshape(1, -1)
+    return cv2.filter2D(inside.astype(np.float64), -1, kernel, borderType=cv2.BORDER_CONSTANT).astype(np.float32)
 
 
 def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, scale: int, radius: int,
