@@ -81,7 +81,17 @@ def test_paper_model_is_bundled():
     assert "paper" in ccdn.available_models()
 
 
-@pytest.mark.parametrize("model", ["fast", "paper-int8"])
+def test_default_model_is_int8_only_on_cpus_with_8bit_dot_products(monkeypatch):
+    from ccdn import models
+
+    for has_vnni, name in ((True, "paper-int8"), (False, "paper")):
+        models.default_model.cache_clear()
+        monkeypatch.setattr(models, "_has_int8_dot_product", lambda: has_vnni)
+        assert ccdn.Detector(threads=1).model.name == name
+    models.default_model.cache_clear()
+
+
+@pytest.mark.parametrize("model", ["fast", "paper-int8", "paper"])
 @pytest.mark.parametrize("name", ["board", "fisheye", "two-boards"])
 def test_other_bundled_models_find_every_corner_of_the_examples_and_nothing_else(examples, name, model):
     ex = examples[name]

@@ -47,7 +47,8 @@ PAPER_THRESHOLD = (0.5, 0.3)  # the paper's half of the maximum (and a floor), f
 class Detector:
     """Checkerboard inner-corner detector around one onnxruntime CPU session.
 
-    model: a bundled model's name (default: ccdn.models.DEFAULT_MODEL, "paper-int8") or a path to an .onnx file.
+    model: a bundled model's name (default: ccdn.models.default_model(): "paper-int8" on CPUs with
+    VNNI, "paper" elsewhere) or a path to an .onnx file.
     threads: intra-op threads (default: available CPUs, capped at 4). spinning: False keeps idle
     threads from busy-waiting, for apps that share the CPU.
     relative, floor: keep score peaks >= max(relative * max score, floor). Default: 0.4 and 0.25 with
