@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> None:
                              coarse_to_fine=not args.no_coarse)
     t0 = time.time()
     result = evaluate(detector, args.synthetic, args.seed, real_dev=not args.no_real_dev)
-    result["config"] = {"model": detector.model.name, "version": detector.model.version, "refinement": args.refinement,
+    result["config"] = {"model": detector.models, "version": detector.model.version, "refinement": args.refinement,
                         "filter": args.filter, "coarse_to_fine": not args.no_coarse, "match_radius_px": MATCH_RADIUS, "seed": args.seed,
                         "machine": cpu_name(), "seconds": round(time.time() - t0, 1)}
     args.json.parent.mkdir(parents=True, exist_ok=True)

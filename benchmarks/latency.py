@@ -7,7 +7,7 @@ the median and the 10th/90th percentiles per stage. OpenCV's findChessboardCorne
 board size, runs on the same frames for comparison. Cold start (import + session + first detect)
 is timed in a fresh process; peak RSS is the process's high-water mark after each size.
 
-    python benchmarks/latency.py [--models paper fast] [--repeat 3] [--json out/latency.json]
+    python benchmarks/latency.py [--models default paper fast] [--repeat 3] [--json out/latency.json]
 """
 
 from __future__ import annotations
@@ -93,7 +93,8 @@ STAGES = ("load", "network", "peaks", "refine", "boards", "edges")
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--models", nargs="+", default=[None], help="bundled model names or .onnx paths (default: the default model)")
+    parser.add_argument("--models", nargs="+", default=["default"],
+                        help="bundled model names or .onnx paths; 'default': the default detector (fast+paper cascade)")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--frames", type=int, default=12, help="how many real-dev photos to use")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
@@ -106,14 +107,14 @@ def main(argv: list[str] | None = None) -> None:
     report = {"machine": {"cpu": cpu_name(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},
               "frames": len(loaded), "repeat": args.repeat,
-              "cold_start_ms": {str(m or "default"): cold_start(m) * 1e3 for m in args.models}, "runs": []}
+              "cold_start_ms": {m: cold_start(None if m == "default" else m) * 1e3 for m in args.models}, "runs": []}
     for w, h in SIZES:
         frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA if f.shape[1] > w else cv2.INTER_LINEAR)
                   for f, _ in loaded]
         for model in args.models:
             for threads in args.threads:
-                detector = ccdn.Detector(model, threads)
-                run = {"size": f"{w}x{h}", "threads": threads, "model": detector.model.name,
+                detector = ccdn.Detector(None if model == "default" else model, threads)
+                run = {"size": f"{w}x{h}", "threads": threads, "model": detector.models,
                        "stages": time_detector(detector, frames, args.repeat)}
                 report["runs"].append(run)
         if not args.no_opencv:

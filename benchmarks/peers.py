@@ -43,7 +43,7 @@ def ccdn_adapter(model: str | os.PathLike | None, threads: int | None) -> Adapte
         last[0] = detector.detect(gray)
         return last[0].xy.astype(np.float64)
 
-    return Adapter("ccdn", detect, f"model {detector.model.name} {detector.model.version}, {detector.threads} threads",
+    return Adapter("ccdn", detect, f"model {detector.models} {detector.model.version}, {detector.threads} threads",
                    lambda: [(b.grid, b.xy.astype(np.float64)) for b in last[0].boards])
 
 

@@ -128,11 +128,14 @@ def test_paper_postprocessing_with_kmeans_is_still_available(examples):
     assert np.array_equal(result.xy, np.round(result.xy))  # integer score peaks, as in the paper
 
 
-def _network_frames(detector: ccdn.Detector) -> list[tuple[int, int]]:
-    """The shapes of the frames `detector`'s network runs on, recorded as it detects."""
+def _network_frames(detector: ccdn.Detector) -> list[tuple[int, int, str]]:
+    """(height, width, model name) of the frames `detector`'s networks run on, recorded as it detects."""
     shapes = []
-    network = detector._session.scores
-    detector._session.scores = lambda frame, *args, **kwargs: shapes.append(frame.shape) or network(frame, *args, **kwargs)
+    for session in {id(s): s for s in (detector._coarse_session, detector._session)}.values():
+        def record(frame, *args, network=session.scores, name=session.info.name, **kwargs):
+            shapes.append((*frame.shape, name))
+            return network(frame, *args, **kwargs)
+        session.scores = record
     return shapes
 
 
@@ -141,7 +144,7 @@ def test_a_vga_frame_with_big_squares_is_detected_on_the_halved_frame(examples):
     shapes = _network_frames(detector)
     coarse = detector.detect(examples["board"]["path"])  # squares ~24 px: 12 px halved
     full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(examples["board"]["path"])
-    assert shapes == [(240, 320)]  # the full-size pass was skipped
+    assert shapes == [(240, 320, "fast")]  # the full-size pass was skipped
     assert len(coarse) == len(full) == 54
     assert max(nearest_distances(coarse.xy, full.xy)) < 0.01  # refined on the same full-size pixels
 
@@ -156,7 +159,7 @@ def test_a_2000x1500_frame_with_75_px_squares_is_detected_on_the_8x_frame_alone(
     shapes = _network_frames(detector)
     coarse = detector.detect(big)
     full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(big)
-    assert shapes == [(187, 250)]  # squares of ~9 px there: no finer pass
+    assert shapes == [(187, 250, "fast")]  # squares of ~9 px there: no finer pass
     errors = [nearest_distances(r.xy, truth) for r in (coarse, full)]  # an upscaled, blurred board: ~0.2 px
     assert len(coarse) == len(full) == 54
     assert max(errors[0]) < 0.5 and np.mean(errors[0]) < np.mean(errors[1]) + 0.02
@@ -168,10 +171,24 @@ def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(exa
     gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
     frame = np.full_like(gray, int(np.median(gray)))
     frame[150:342, 200:456] = cv2.resize(gray, (256, 192), interpolation=cv2.INTER_AREA)  # ~10 px squares
-    coarse = ccdn.Detector(threads=2).detect(frame)
+    detector = ccdn.Detector(threads=2)
+    shapes = _network_frames(detector)
+    coarse = detector.detect(frame)
     full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(frame)
     assert len(full) >= 50
     assert np.array_equal(coarse.xy, full.xy)
+    # the default cascade: `fast` on the halved frame, the paper net on the full one
+    assert shapes == [(240, 320, "fast"), (480, 640, ccdn.models.default_model())]
+    assert coarse.model.startswith(ccdn.models.default_model() + " ")
+
+
+def test_a_named_model_runs_every_pass_itself(examples):
+    detector = ccdn.Detector("paper", threads=2)
+    shapes = _network_frames(detector)
+    result = detector.detect(examples["board"]["path"])
+    assert shapes == [(240, 320, "paper")] and result.model.startswith("paper ")
+    cascade = ccdn.Detector("paper", threads=2, coarse_model="fast")
+    assert cascade.coarse_model.name == "fast" and cascade.detect(examples["board"]["path"]).model.startswith("fast ")
 
 
 def test_big_frames_run_in_strips_that_stitch_to_the_whole_frame_scores(detector, examples):

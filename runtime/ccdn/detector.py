@@ -9,9 +9,14 @@ that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x,
 When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass finds boards whose
 squares are that big on the shrunk frame, their corners are refined on the full-resolution image
 and the finer passes are skipped; otherwise the next finer pass runs, down to the full frame. Small
-squares and frames without a board therefore pay for the shrunk passes (about a third more network
-time), and a board too small to be seen shrunk is lost when another board in the same frame has
-squares big enough (measured in benchmarks/; README).
+squares and frames without a board therefore pay for the shrunk passes, and a board too small to be
+seen shrunk is lost when another board in the same frame has squares big enough (measured in
+benchmarks/; README).
+
+The default detector is a cascade: the shrunk passes run the cheap `fast` model (COARSE_MODEL),
+whose one weakness, corners closer than ~5 px (its 4x4-pixel output cells), cannot matter there,
+since a shrunk pass is kept only when its squares are >= COARSE_MIN_SQUARE px; the full-frame pass,
+which small squares reach, runs the paper net. A model named explicitly runs every pass itself.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ COARSE_MIN_SIDE = 160  # px: the shorter side of a frame shrunk for a coarse pas
 # pass, so the median went up (real-dev frames 20.9 -> 22.7 ms, stress renders 27.7 -> 29.2 ms), and the fast
 # model lost whole second boards there (stress two-boards 1.7 -> 8.0 % missed); 240 left 2000x1500 frames at 4x
 # (network 27 vs 7 ms); 90 adds a 16x pass at 2000x1500 that never finds the board there
+COARSE_MODEL = "fast"  # the default detector's shrunk passes (module docstring)
 COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass (chosen on the
 # stress renders: at 7 their figures stay those of the full-resolution pass)
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
@@ -48,7 +54,9 @@ class Detector:
     """Checkerboard inner-corner detector around one onnxruntime CPU session.
 
     model: a bundled model's name (default: ccdn.models.default_model(): "paper-int8" on CPUs with
-    VNNI, "paper" elsewhere) or a path to an .onnx file.
+    VNNI, "paper" elsewhere) or a path to an .onnx file: the model of the full-frame pass.
+    coarse_model: the model of the shrunk passes of coarse-to-fine: by default COARSE_MODEL ("fast")
+    when `model` is not named (the default cascade, module docstring), else `model` itself.
     threads: intra-op threads (default: available CPUs, capped at 4). spinning: False keeps idle
     threads from busy-waiting, for apps that share the CPU.
     relative, floor: keep score peaks >= max(relative * max score, floor). Default: 0.4 and 0.25 with
@@ -64,8 +72,9 @@ class Detector:
     detect() is thread-safe: one Detector may serve several threads.
     """
 
-    def __init__(self, model: str | os.PathLike | None = None, threads: int | None = None, *, spinning: bool = True,
-                 relative: float | None = None, floor: float | None = None, filter: str = "grid", refinement: str = "saddle",
+    def __init__(self, model: str | os.PathLike | None = None, threads: int | None = None, *,
+                 coarse_model: str | os.PathLike | None = None, spinning: bool = True, relative: float | None = None,
+                 floor: float | None = None, filter: str = "grid", refinement: str = "saddle",
                  coarse_to_fine: bool = True, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
         if filter not in FILTERS:
             raise ValueError(f"unknown filter {filter!r}; choose from {FILTERS}")
@@ -78,7 +87,18 @@ class Detector:
         self.filter = filter
         self.refinement = refinement
         self.coarse_to_fine = coarse_to_fine and filter == "grid" and refinement != "none"
+        if coarse_model is None and model is None:
+            coarse_model = COARSE_MODEL
+        self._coarse_session = (ScoreSession(coarse_model, threads, spinning) if self.coarse_to_fine and coarse_model
+                                is not None else self._session)
+        self.coarse_model = self._coarse_session.info
         self.max_pixels = max_pixels
+
+    @property
+    def models(self) -> str:
+        """The models it runs, by name: "fast+paper" for a cascade (shrunk passes + full frame)."""
+        names = (self.coarse_model.name, self.model.name)
+        return names[1] if self.coarse_model is self.model else "+".join(names)
 
     def load(self, image: ImageInput) -> np.ndarray:
         """A path or an array -> validated HxW uint8 gray (raises ccdn.ImageError)."""
@@ -98,14 +118,19 @@ class Detector:
         gray = self.load(image)
         clock.lap("load")
         xy = values = found = None
+        model = self.coarse_model
         for scale in _coarse_scales(gray.shape) if self.coarse_to_fine else ():
             xy, values, found = self._coarse(gray, scale, boards, board_size, clock)
             if xy is not None:
                 break
         if xy is None:
-            xy, values, found = self._corners(gray, gray, 1, *self._peaks(gray, clock), boards, board_size, clock)
-        return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]),
-                         f"{self.model.name} {self.model.version}", found, clock.laps)
+            model = self.model
+            score = self._session.scores(gray)
+            clock.lap("network")
+            xy, values, gaps = self._peaks(score, clock)
+            xy, values, found = self._corners(gray, gray, 1, score, xy, values, np.median(gaps), boards, board_size, clock)
+        return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
+                         found, clock.laps)
 
     def scores(self, image: ImageInput) -> np.ndarray:
         """The network's raw (H, W) float32 score map, for inspection."""
@@ -116,31 +141,33 @@ class Detector:
         to trust there (judged first on the peaks, before any refinement, then on the corners found)."""
         h, w = gray.shape  # cropped to a multiple of scale: the shrunk pixels then map exactly onto gray's
         small = cv2.resize(gray[: h - h % scale, : w - w % scale], (w // scale, h // scale), interpolation=cv2.INTER_AREA)
-        score, xy, values, spacing = self._peaks(small, clock)
-        if len(xy) < 9 or spacing < COARSE_MIN_SQUARE:
+        score = self._coarse_session.scores(small)
+        clock.lap("network")
+        xy, values, gaps = self._peaks(score, clock)
+        # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
+        # more numerous with the fast model, pull the median below the board's squares
+        if len(xy) < 9 or np.percentile(gaps, 75) < COARSE_MIN_SQUARE:
             return None, None, None
-        xy, values, found = self._corners(gray, small, scale, score, xy, values, spacing, boards, board_size, clock)
-        if len(xy) < 9 or _median_spacing(xy) / scale < COARSE_MIN_SQUARE:
+        xy, values, found = self._corners(gray, small, scale, score, xy, values, np.median(gaps), boards, board_size,
+                                          clock)
+        if len(xy) < 9 or np.median(_gaps(xy)) / scale < COARSE_MIN_SQUARE:
             return None, None, None
         return xy, values, found
 
-    def _peaks(self, frame: np.ndarray, clock: _Clock):
-        """The network's score map on `frame`, its peaks (xy, values) after the filter and their
-        median spacing in frame pixels (0 with fewer than two)."""
-        score = self._session.scores(frame)
-        clock.lap("network")
+    def _peaks(self, score: np.ndarray, clock: _Clock):
+        """The peaks (xy, values) of a score map after the filter and their gaps (_gaps)."""
         xy, values = find_peaks(score, self.relative, self.floor)
         if self.filter == "kmeans" and len(xy):
             keep = kmeans_outliers(xy)
             xy, values = xy[keep], values[keep]
-        spacing = _median_spacing(xy) if len(xy) > 1 else 0.0
+        gaps = _gaps(xy)
         clock.lap("peaks")
-        return score, xy, values, spacing
+        return xy, values, gaps
 
     def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, score: np.ndarray, xy: np.ndarray,
                  values: np.ndarray, spacing: float, boards: bool, board_size, clock: _Clock):
-        """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `spacing` theirs, in
-        frame pixels) refined on gray, then the boards they form."""
+        """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `spacing`: their median
+        gap, in frame pixels) refined on gray, then the boards they form."""
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
         radius = window_for_spacing(spacing * scale)
         if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
@@ -219,10 +246,12 @@ def _coarse_scales(shape: tuple[int, ...]) -> list[int]:
     return scales[::-1]
 
 
-def _median_spacing(xy: np.ndarray) -> float:
-    """Median distance from each of the (first 512) corners to its nearest neighbour: about one
-    square side on a board."""
-    return float(np.median(np.sqrt(nearest_neighbours(xy[:512].astype(np.float64), 1)[1])))
+def _gaps(xy: np.ndarray) -> np.ndarray:
+    """Distances from each of the (first 512) points to its nearest neighbour (about one square
+    side on a board); [0.0] with fewer than two points."""
+    if len(xy) < 2:
+        return np.zeros(1)
+    return np.sqrt(nearest_neighbours(xy[:512].astype(np.float64), 1)[1][:, 0])
 
 
 class _Clock:
