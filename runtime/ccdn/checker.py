@@ -26,9 +26,10 @@ class Sampler:
         return (x >= 0) & (y >= 0) & (x < self.width) & (y < self.height)
 
     def mean(self, points: np.ndarray, radius: np.ndarray) -> np.ndarray:
-        """Mean over the (2 radius + 1)^2 box around each point (K, 2); radius (K,) int."""
-        xi = np.rint(points[:, 0]).astype(np.int64)
-        yi = np.rint(points[:, 1]).astype(np.int64)
+        """Mean over the (2 radius + 1)^2 box around each point (..., 2); radius: int, broadcast
+        against points' leading shape."""
+        xi = np.rint(points[..., 0]).astype(np.int64)
+        yi = np.rint(points[..., 1]).astype(np.int64)
         w1, h1, stride = self.width - 1, self.height - 1, self.width + 1  # stride: the integral's row length
         # np.minimum / np.maximum: np.clip's Python wrapper costs more than the work on these sizes
         x0, x1 = np.minimum(np.maximum(xi - radius, 0), w1), np.minimum(np.maximum(xi + radius, 0), w1) + 1
@@ -55,7 +56,8 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     quad centre off the image is sampled halfway to it.
     """
     p = np.atleast_2d(p)
-    u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
+    if u.shape != p.shape or v.shape != p.shape:  # broadcast_to's cost shows on these small calls
+        u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
     cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
     longest = np.maximum(np.hypot(u[:, 0], u[:, 1]), np.hypot(v[:, 0], v[:, 1]))
     radius = np.floor(0.12 * cross / np.maximum(longest, 1e-9)).astype(np.int64)  # well inside a square
@@ -68,8 +70,7 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     centre = p[None] + step / 2
     off = ~sampler.contains(centre.reshape(-1, 2)).reshape(4, -1)
     centre[off] = (p[None] + step / 4)[off]
-    points = (centre[:, None] + offsets[None]).reshape(-1, 2)  # (4 quads, S samples, K) flattened
-    samples = sampler.mean(points, np.tile(radius, 4 * n)).reshape(4, n, -1)
+    samples = sampler.mean(centre[:, None] + offsets[None], radius)  # (4 quads, S samples, K)
     # fmax / fmin skip NaN samples (off the image) without nanmax's warnings; all-NaN stays NaN
     spread = np.fmax.reduce(np.fmax.reduce(samples, 1) - np.fmin.reduce(samples, 1), 0)
     pp, pm, mp, mm = np.sort(samples, axis=1)[:, n // 2]  # the median sample

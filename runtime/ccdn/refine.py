@@ -48,6 +48,12 @@ class _Quadric:
     weight2: np.ndarray
     pinv: np.ndarray
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        """The patch's (rows, columns)."""
+        side = int(round(np.sqrt(len(self.ox))))
+        return side, side
+
 
 @lru_cache(maxsize=16)
 def _quadric(radius: int) -> _Quadric:
@@ -122,26 +128,33 @@ def _fit(smoothed: _Smoothed, centre: np.ndarray, quadric: _Quadric, min_saddle:
     Patches reaching off the frame are fitted on their pixels inside it, so corners at the frame's
     edge refine too."""
     h, w = smoothed.frame_shape
-    mx, my = centre[:, 0:1] + quadric.ox[None], centre[:, 1:2] + quadric.oy[None]
-    sx, sy = mx - smoothed.shift[:, 0:1], my - smoothed.shift[:, 1:2]  # in the smoothed image
+    r = quadric.shape[0] // 2
+    cx, cy = centre[:, 0:1] - smoothed.shift[:, 0:1], centre[:, 1:2] - smoothed.shift[:, 1:2]  # in the smoothed image
+    sx, sy = cx + quadric.ox[None], cy + quadric.oy[None]
     lo, hi = smoothed.low, smoothed.high
+    if not ((cx[:, 0] - r >= lo[:, 0]) & (cx[:, 0] + r <= hi[:, 0]) & (cy[:, 0] - r >= lo[:, 1])
+            & (cy[:, 0] + r <= hi[:, 1])).all():  # clamped: never into another patch (a no-op otherwise)
+        sx = np.minimum(np.maximum(sx, lo[:, 0:1]), hi[:, 0:1])
+        sy = np.minimum(np.maximum(sy, lo[:, 1:2]), hi[:, 1:2])
     if centre.dtype.kind == "i":
-        values = smoothed.image[np.minimum(np.maximum(sy, lo[:, 1:2]), hi[:, 1:2]),
-                                np.minimum(np.maximum(sx, lo[:, 0:1]), hi[:, 0:1])]
+        values = np.ravel(smoothed.image).take(sy * smoothed.image.shape[1] + sx)
     else:
-        sx = np.minimum(np.maximum(sx, lo[:, 0:1]), hi[:, 0:1]).astype(np.float32)  # never into another patch
-        sy = np.minimum(np.maximum(sy, lo[:, 1:2]), hi[:, 1:2]).astype(np.float32)
-        values = cv2.remap(smoothed.image, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        values = cv2.remap(smoothed.image, sx.astype(np.float32), sy.astype(np.float32), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
     values = values.astype(np.float64)
     coef = values @ quadric.pinv.T  # (N, 6): a, b, c, d, e, g
-    inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
-    cut = np.nonzero(~inside.all(1))[0]
-    if len(cut):  # weighted normal equations over the pixels inside, one 6x6 system per corner
-        weight = quadric.weight2[None] * inside[cut]
-        normal = np.einsum("np,pi,pj->nij", weight, quadric.design, quadric.design)
-        rhs = np.einsum("np,pi->ni", weight * values[cut], quadric.design)
-        eigen = np.linalg.eigvalsh(normal)  # ascending; symmetric, so their ratio is the condition number
-        solvable = eigen[:, 0] > 1e-8 * eigen[:, -1]
+    x, y = centre[:, 0], centre[:, 1]
+    cut = np.nonzero((x - r < 0) | (x + r > w - 1) | (y - r < 0) | (y + r > h - 1))[0]  # windows off the frame
+    if len(cut):
+        mx, my = centre[cut, 0:1] + quadric.ox[None], centre[cut, 1:2] + quadric.oy[None]
+        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+        # weighted normal equations over the pixels inside, one 6x6 system per corner
+        weighted = (quadric.weight2[None] * inside)[:, None, :] * quadric.design.T[None]  # (K, 6, P)
+        normal = weighted @ quadric.design
+        rhs = (weighted @ values[cut][..., None])[..., 0]
+        # the pixels inside form a rectangle: a quadric needs at least 3 of its columns and 3 rows
+        box = inside.reshape(len(cut), *quadric.shape)
+        solvable = (box.any(1).sum(1) >= 3) & (box.any(2).sum(1) >= 3)
         coef[cut] = np.nan
         coef[cut[solvable]] = np.linalg.solve(normal[solvable], rhs[solvable][..., None])[..., 0]
     a, b, c, d, e = coef[:, 0], coef[:, 1], coef[:, 2], coef[:, 3], coef[:, 4]
