@@ -58,6 +58,7 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -290,7 +291,7 @@ class _Grower:
             reach = np.minimum(hi - lo + 1, CANVAS_MARGIN)
             near = np.isfinite(cells).all(1) & (cells >= np.maximum(lo - reach, 0)).all(1)
             near &= (cells <= np.minimum(hi + reach, np.array(self.idx.shape) - 1)).all(1)
-            cells = np.unique(cells[near].astype(np.int64), axis=0)
+            cells = _unique_cells(cells[near].astype(np.int64), self.idx.shape[1])
             cells = cells[self.idx[cells[:, 0], cells[:, 1]] < 0]
             if len(cells) == 0:
                 return
@@ -388,7 +389,7 @@ class _Grower:
         targets, preds, tols = np.concatenate(targets), np.concatenate(preds), np.concatenate(tols)
         if len(targets) == 0:
             return False
-        first = np.sort(np.unique(targets, axis=0, return_index=True)[1])
+        first = np.sort(np.unique(targets[:, 0] * self.idx.shape[1] + targets[:, 1], return_index=True)[1])
         targets = targets[first]
         return bool(self._take(targets, preds[first], tols[first], *self._axes(targets)).any())
 
@@ -467,6 +468,22 @@ def _project_with_steps(homography: np.ndarray, grid: np.ndarray) -> tuple[np.nd
     return points, right - points, down - points
 
 
+def _unique_cells(cells: np.ndarray, width: int) -> np.ndarray:
+    """The distinct canvas cells (K, 2) (row, col < width), sorted by row, then column: np.unique(axis=0)
+    on one integer key per cell, without its slow row-wise path."""
+    key = np.unique(cells[:, 0] * width + cells[:, 1])
+    return np.stack([key // width, key % width], 1)
+
+
+@lru_cache(maxsize=4)
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """np.triu_indices(n, 1), cached: the index pairs (i < j) of n neighbours."""
+    i, j = np.triu_indices(n, 1)
+    i.setflags(write=False)
+    j.setflags(write=False)
+    return i, j
+
+
 def _shorter(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(K,) the shorter of each pair of steps."""
     return np.minimum(np.hypot(u[:, 0], u[:, 1]), np.hypot(v[:, 0], v[:, 1]))
@@ -506,7 +523,7 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     candidates = np.take_along_axis(neighbours, order, 1)
     valid = np.take_along_axis(valid, order, 1)
     nb, nb_valid = candidates[:, :SEED_NEIGHBOURS], valid[:, :SEED_NEIGHBOURS]
-    i, j = np.triu_indices(nb.shape[1], 1)
+    i, j = _pairs(nb.shape[1])
     p = xy[seeds][:, None]  # (S, 1, 2)
     u, v = xy[nb[:, i]] - p, xy[nb[:, j]] - p  # (S, P, 2)
     lu, lv = np.linalg.norm(u, axis=2), np.linalg.norm(v, axis=2)
@@ -567,11 +584,15 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
 def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,
             allow_partial: bool) -> np.ndarray | None:
     """(row, col) in the documented orientation, or None if the board does not fit board_size."""
-    index = {(int(r), int(c)): k for k, (r, c) in enumerate(grid)}
+    rows, cols = grid[:, 0] - grid[:, 0].min(), grid[:, 1] - grid[:, 1].min()
+    canvas = np.full((rows.max() + 2, cols.max() + 2), -1, np.int64)
+    canvas[rows, cols] = np.arange(len(grid))
 
     def mean_step(dr: int, dc: int) -> np.ndarray:
-        pairs = [(k, index[(r + dr, c + dc)]) for (r, c), k in index.items() if (r + dr, c + dc) in index]
-        steps = np.array([xy[b] - xy[a] for a, b in pairs])
+        """The mean unit step in the image from each corner to its (row + dr, col + dc) neighbour."""
+        neighbour = canvas[rows + dr, cols + dc]
+        has = neighbour >= 0
+        steps = xy[neighbour[has]] - xy[has]
         return (steps / np.linalg.norm(steps, axis=1, keepdims=True)).mean(0)
 
     col_dir, row_dir = mean_step(0, 1), mean_step(1, 0)
