@@ -130,7 +130,8 @@ def evaluate(cam: dict, views: list[View], truths: dict[str, np.ndarray], second
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=20)
-    parser.add_argument("--model", default=None, help="ccdn model (default: paper-int8 on CPUs with VNNI, else paper)")
+    parser.add_argument("--model", default=None,
+                        help="ccdn model (default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI)")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None)

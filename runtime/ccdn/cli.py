@@ -107,7 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-pixels", type=positive_int, default=None, metavar="N",
                    help=f"refuse larger images, checked from the file header before decoding (default {MAX_PIXELS_HELP})")
     p.add_argument("--force", action="store_true", help="redo images that already have a result")
-    p.add_argument("--model", default=None, help="bundled model name or .onnx path (default: paper-int8 on CPUs with VNNI, else paper)")
+    p.add_argument("--model", default=None,
+                   help="bundled model name or .onnx path (default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI)")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary line; failures are still listed")
     p.set_defaults(func=run_detect)
     c = sub.add_parser(
@@ -120,7 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--board", type=board_size, required=True, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
     c.add_argument("--square", type=float, required=True, help="square side, in the unit wanted for poses")
     c.add_argument("--model-type", choices=["pinhole", "fisheye"], default="pinhole", help="lens model (default pinhole)")
-    c.add_argument("--model", default=None, help="bundled detector model name or .onnx path (default: paper-int8 on CPUs with VNNI, else paper)")
+    c.add_argument("--model", default=None,
+                   help="bundled detector model name or .onnx path (default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI)")
     c.add_argument("--threads", type=positive_int, default=None, metavar="N", help="inference threads")
     c.add_argument("--out", type=Path, required=True, help="output folder")
     c.add_argument("--partial", action="store_true",
