@@ -51,7 +51,7 @@ PAPER_THRESHOLD = (0.5, 0.3)  # the paper's half of the maximum (and a floor), f
 
 
 class Detector:
-    """Checkerboard inner-corner detector around one onnxruntime CPU session.
+    """Checkerboard inner-corner detector around its onnxruntime CPU sessions (one per model it runs).
 
     model: a bundled model's name (default: ccdn.models.default_model(): "paper-int8" on CPUs with
     VNNI, "paper" elsewhere) or a path to an .onnx file: the model of the full-frame pass.

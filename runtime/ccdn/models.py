@@ -33,8 +33,8 @@ def available_models() -> list[str]:
 @lru_cache(maxsize=1)
 def default_model() -> str:
     """The bundled model used when none is named: INT8_MODEL on x86 CPUs with VNNI (8-bit dot
-    products), where onnxruntime's integer kernels run the paper net at ~0.5-0.7 of its float32
-    time (measured on an AVX-512 VNNI Xeon), FLOAT_MODEL elsewhere: without them the int8 graph is
+    products), where onnxruntime's integer kernels run the paper net in about half its float32
+    network time (measured on an AVX-512 VNNI Xeon), FLOAT_MODEL elsewhere: without them the int8 graph is
     slower than float32 (AVX2-only AMD EPYC, 2 threads, 640x480: network 286 vs 216 ms), and it is
     unmeasured on ARM. Both give the same detections within the quantisation's noise
     (models/paper-int8.md)."""

@@ -39,20 +39,15 @@ def window_for_spacing(spacing: float) -> int:
 
 @dataclass(frozen=True)
 class _Quadric:
-    """The least-squares quadric fit on a (2r+1)^2 patch: its offsets, design matrix, squared
-    weights and, for patches wholly inside the image, the fit's pseudo-inverse (read-only arrays)."""
+    """The least-squares quadric fit on a (2r+1)^2 patch: its radius r, offsets, design matrix,
+    squared weights and, for patches wholly inside the image, the fit's pseudo-inverse (read-only arrays)."""
 
+    radius: int
     ox: np.ndarray
     oy: np.ndarray
     design: np.ndarray
     weight2: np.ndarray
     pinv: np.ndarray
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """The patch's (rows, columns)."""
-        side = int(round(np.sqrt(len(self.ox))))
-        return side, side
 
 
 @lru_cache(maxsize=16)
@@ -64,8 +59,8 @@ def _quadric(radius: int) -> _Quadric:
     w = np.exp(-(ox**2 + oy**2) / (2 * sigma**2))
     design = np.stack([ox * ox, ox * oy, oy * oy, ox, oy, np.ones_like(ox)], 1)
     pinv = np.linalg.pinv(design * w[:, None]) * w[None, :]
-    fit = _Quadric(ox.astype(np.int64), oy.astype(np.int64), design, w * w, pinv)
-    for a in vars(fit).values():
+    fit = _Quadric(radius, ox.astype(np.int64), oy.astype(np.int64), design, w * w, pinv)
+    for a in (fit.ox, fit.oy, fit.design, fit.weight2, fit.pinv):
         a.setflags(write=False)
     return fit
 
@@ -128,7 +123,7 @@ def _fit(smoothed: _Smoothed, centre: np.ndarray, quadric: _Quadric, min_saddle:
     Patches reaching off the frame are fitted on their pixels inside it, so corners at the frame's
     edge refine too."""
     h, w = smoothed.frame_shape
-    r = quadric.shape[0] // 2
+    r = quadric.radius
     cx, cy = centre[:, 0:1] - smoothed.shift[:, 0:1], centre[:, 1:2] - smoothed.shift[:, 1:2]  # in the smoothed image
     sx, sy = cx + quadric.ox[None], cy + quadric.oy[None]
     lo, hi = smoothed.low, smoothed.high
@@ -153,7 +148,7 @@ def _fit(smoothed: _Smoothed, centre: np.ndarray, quadric: _Quadric, min_saddle:
         normal = weighted @ quadric.design
         rhs = (weighted @ values[cut][..., None])[..., 0]
         # the pixels inside form a rectangle: a quadric needs at least 3 of its columns and 3 rows
-        box = inside.reshape(len(cut), *quadric.shape)
+        box = inside.reshape(len(cut), 2 * r + 1, 2 * r + 1)
         solvable = (box.any(1).sum(1) >= 3) & (box.any(2).sum(1) >= 3)
         coef[cut] = np.nan
         coef[cut[solvable]] = np.linalg.solve(normal[solvable], rhs[solvable][..., None])[..., 0]
