@@ -34,10 +34,10 @@ def available_models() -> list[str]:
 def default_model() -> str:
     """The bundled model used when none is named: INT8_MODEL on x86 CPUs with VNNI (8-bit dot
     products), where onnxruntime's integer kernels run the paper net in about half its float32
-    network time (measured on an AVX-512 VNNI Xeon), FLOAT_MODEL elsewhere: without them the int8 graph is
-    slower than float32 (AVX2-only AMD EPYC, 2 threads, 640x480: network 286 vs 216 ms); unmeasured
-    on Intel CPUs with AVX2 but no VNNI and on ARM, which get float32, the safe choice. Both give the same detections within the quantisation's noise
-    (models/paper-int8.md)."""
+    network time (measured on an AVX-512 VNNI Xeon), FLOAT_MODEL elsewhere: without VNNI the int8
+    graph is slower than float32 (AVX2-only AMD EPYC, 2 threads, 640x480: network 286 vs 216 ms);
+    Intel CPUs with AVX2 but no VNNI, and ARM, are unmeasured and get float32, the safe choice. Both
+    give the same detections within the quantisation's noise (models/paper-int8.md)."""
     return INT8_MODEL if _has_int8_dot_product() else FLOAT_MODEL
 
 
