@@ -203,3 +203,14 @@ def test_big_frames_run_in_strips_that_stitch_to_the_whole_frame_scores(detector
 def test_unknown_filter_is_refused():
     with pytest.raises(ValueError, match="unknown filter"):
         ccdn.Detector(filter="magic")
+
+
+def test_a_coarse_pass_lets_refinement_walk_three_shrunk_pixels_from_a_peak():
+    """`fast`'s peaks on a shrunk frame can lie ~2 shrunk px off (its 4x4-pixel output cells): this
+    corner of a partial board 3.6 px from the frame's edge has its halved-frame peak 4.1 px away
+    (measured), beyond the 2-shrunk-pixel walk allowed before, and was missed."""
+    from conftest import calm_scene
+
+    scene = calm_scene(7_130_015, square_px=(45.0, 110.0), max_tilt_deg=40.0)  # the stress set's partial render
+    corner = np.array([[48.0, 476.4]])
+    assert nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, corner)[0] < 0.1
