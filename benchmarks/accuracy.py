@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 import ccdn
+from ccdn.models import DEFAULT_HELP
 
 from machine import cpu_name
 
@@ -178,7 +179,7 @@ def format_table(groups: dict) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=None,
-                        help="bundled model name or .onnx path (default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI)")
+                        help=f"bundled model name or .onnx path ({DEFAULT_HELP})")
     parser.add_argument("--refinement", default="saddle")
     parser.add_argument("--filter", default="grid", help="false-corner filter: grid (default), kmeans (paper), none")
     parser.add_argument("--no-coarse", action="store_true", help="always run the network at full resolution")

@@ -23,6 +23,7 @@ import numpy as np
 
 import ccdn
 from ccdn.calibration import CalibrationError, View, calibrate
+from ccdn.models import DEFAULT_HELP
 
 from machine import cpu_name
 
@@ -131,7 +132,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=20)
     parser.add_argument("--model", default=None,
-                        help="ccdn model (default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI)")
+                        help=f"ccdn model ({DEFAULT_HELP})")
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None)

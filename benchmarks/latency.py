@@ -76,6 +76,11 @@ def time_opencv(frames: list[np.ndarray], sizes: list[tuple[int, int] | None], r
     return {"total": stats(samples), "found_fraction": found / len(samples)}
 
 
+def _model_arg(name: str) -> str | None:
+    """A --models entry as Detector's model argument: 'default' is None (the default detector)."""
+    return None if name == "default" else name
+
+
 def cold_start(model: str | None) -> float:
     """Seconds for import + Detector + first detect, in a fresh interpreter."""
     code = ("import time; t=time.perf_counter(); import numpy as np, ccdn; "
@@ -107,13 +112,13 @@ def main(argv: list[str] | None = None) -> None:
     report = {"machine": {"cpu": cpu_name(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},
               "frames": len(loaded), "repeat": args.repeat,
-              "cold_start_ms": {m: cold_start(None if m == "default" else m) * 1e3 for m in args.models}, "runs": []}
+              "cold_start_ms": {m: cold_start(_model_arg(m)) * 1e3 for m in args.models}, "runs": []}
     for w, h in SIZES:
         frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA if f.shape[1] > w else cv2.INTER_LINEAR)
                   for f, _ in loaded]
         for model in args.models:
             for threads in args.threads:
-                detector = ccdn.Detector(None if model == "default" else model, threads)
+                detector = ccdn.Detector(_model_arg(model), threads)
                 run = {"size": f"{w}x{h}", "threads": threads, "model": detector.models,
                        "stages": time_detector(detector, frames, args.repeat)}
                 report["runs"].append(run)

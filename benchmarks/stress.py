@@ -37,6 +37,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from ccdn.models import DEFAULT_HELP
 from ccdn_training.synth import PAPER_BOARDS, Scene, SceneConfig, render_scene
 from tqdm import tqdm
 
@@ -225,7 +226,7 @@ def format_results(result: dict) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=None,
-                        help="ccdn: bundled model name or .onnx path (default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI)")
+                        help=f"ccdn: bundled model name or .onnx path ({DEFAULT_HELP})")
     parser.add_argument("--threads", type=int, default=None, help="ccdn and OpenCV threads (default: each library's)")
     parser.add_argument("--per-subset", type=int, default=20, help="images per subset")
     parser.add_argument("--subsets", nargs="+", choices=list(SUBSETS), default=list(SUBSETS))

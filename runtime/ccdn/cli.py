@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from .models import DEFAULT_HELP
+
 FORMATS = ["json", "jsonl", "csv"]  # ccdn.batch.FORMATS, repeated so that the parser imports nothing heavy
 MAX_PIXELS_HELP = "100000000"  # ccdn.image.DEFAULT_MAX_PIXELS, likewise (a test checks both)
 
@@ -108,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"refuse larger images, checked from the file header before decoding (default {MAX_PIXELS_HELP})")
     p.add_argument("--force", action="store_true", help="redo images that already have a result")
     p.add_argument("--model", default=None,
-                   help="bundled model name or .onnx path (default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI)")
+                   help=f"bundled model name or .onnx path ({DEFAULT_HELP})")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary line; failures are still listed")
     p.set_defaults(func=run_detect)
     c = sub.add_parser(
@@ -122,7 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--square", type=float, required=True, help="square side, in the unit wanted for poses")
     c.add_argument("--model-type", choices=["pinhole", "fisheye"], default="pinhole", help="lens model (default pinhole)")
     c.add_argument("--model", default=None,
-                   help="bundled detector model name or .onnx path (default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI)")
+                   help=f"bundled detector model name or .onnx path ({DEFAULT_HELP})")
     c.add_argument("--threads", type=positive_int, default=None, metavar="N", help="inference threads")
     c.add_argument("--out", type=Path, required=True, help="output folder")
     c.add_argument("--partial", action="store_true",

@@ -127,10 +127,8 @@ class Detector:
                 break
         if xy is None:
             model = self.model
-            score = self._session.scores(gray)
-            clock.lap("network")
-            xy, values, gaps = self._peaks(score, clock)
-            xy, values, found = self._corners(gray, gray, 1, score, xy, values, np.median(gaps), boards, board_size, clock)
+            xy, values, found = self._corners(gray, gray, 1, *self._peaks(self._session, gray, clock), boards, board_size,
+                                              clock)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
                          found, clock.laps)
 
@@ -143,35 +141,35 @@ class Detector:
         to trust there (judged first on the peaks, before any refinement, then on the corners found)."""
         h, w = gray.shape  # cropped to a multiple of scale: the shrunk pixels then map exactly onto gray's
         small = cv2.resize(gray[: h - h % scale, : w - w % scale], (w // scale, h // scale), interpolation=cv2.INTER_AREA)
-        score = self._coarse_session.scores(small)
-        clock.lap("network")
-        xy, values, gaps = self._peaks(score, clock)
+        score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
         if len(xy) < 9 or np.percentile(gaps, 75) < COARSE_MIN_SQUARE:
             return None, None, None
-        xy, values, found = self._corners(gray, small, scale, score, xy, values, np.median(gaps), boards, board_size,
-                                          clock)
+        xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
         if len(xy) < 9 or np.median(_gaps(xy)) / scale < COARSE_MIN_SQUARE:
             return None, None, None
         return xy, values, found
 
-    def _peaks(self, score: np.ndarray, clock: _Clock):
-        """The peaks (xy, values) of a score map after the filter and their gaps (_gaps)."""
+    def _peaks(self, session: ScoreSession, frame: np.ndarray, clock: _Clock):
+        """The score map of `session`'s network on `frame`, its peaks (xy, values) after the filter
+        and their gaps (_gaps)."""
+        score = session.scores(frame)
+        clock.lap("network")
         xy, values = find_peaks(score, self.relative, self.floor)
         if self.filter == "kmeans" and len(xy):
             keep = kmeans_outliers(xy)
             xy, values = xy[keep], values[keep]
         gaps = _gaps(xy)
         clock.lap("peaks")
-        return xy, values, gaps
+        return score, xy, values, gaps
 
     def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, score: np.ndarray, xy: np.ndarray,
-                 values: np.ndarray, spacing: float, boards: bool, board_size, clock: _Clock):
-        """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `spacing`: their median
-        gap, in frame pixels) refined on gray, then the boards they form."""
+                 values: np.ndarray, gaps: np.ndarray, boards: bool, board_size, clock: _Clock):
+        """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `gaps`: theirs, in
+        frame pixels) refined on gray, then the boards they form."""
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
-        radius = window_for_spacing(spacing * scale)
+        radius = window_for_spacing(np.median(gaps) * scale)
         if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
             refined, ok = refine_from_shrunk(gray, frame, xy, scale, radius, COARSE_MAX_SHIFT * scale)
         else:

@@ -291,7 +291,8 @@ class _Grower:
             reach = np.minimum(hi - lo + 1, CANVAS_MARGIN)
             near = np.isfinite(cells).all(1) & (cells >= np.maximum(lo - reach, 0)).all(1)
             near &= (cells <= np.minimum(hi + reach, np.array(self.idx.shape) - 1)).all(1)
-            cells = _unique_cells(cells[near].astype(np.int64), self.idx.shape[1])
+            cells = cells[near].astype(np.int64)
+            cells = cells[_first_of_each_cell(cells, self.idx.shape[1])]
             cells = cells[self.idx[cells[:, 0], cells[:, 1]] < 0]
             if len(cells) == 0:
                 return
@@ -389,7 +390,7 @@ class _Grower:
         targets, preds, tols = np.concatenate(targets), np.concatenate(preds), np.concatenate(tols)
         if len(targets) == 0:
             return False
-        first = np.sort(np.unique(targets[:, 0] * self.idx.shape[1] + targets[:, 1], return_index=True)[1])
+        first = np.sort(_first_of_each_cell(targets, self.idx.shape[1]))
         targets = targets[first]
         return bool(self._take(targets, preds[first], tols[first], *self._axes(targets)).any())
 
@@ -468,11 +469,11 @@ def _project_with_steps(homography: np.ndarray, grid: np.ndarray) -> tuple[np.nd
     return points, right - points, down - points
 
 
-def _unique_cells(cells: np.ndarray, width: int) -> np.ndarray:
-    """The distinct canvas cells (K, 2) (row, col < width), sorted by row, then column: np.unique(axis=0)
-    on one integer key per cell, without its slow row-wise path."""
-    key = np.unique(cells[:, 0] * width + cells[:, 1])
-    return np.stack([key // width, key % width], 1)
+def _first_of_each_cell(cells: np.ndarray, width: int) -> np.ndarray:
+    """Indices of the first occurrence of each distinct canvas cell in cells (K, 2) (row, col < width),
+    in (row, col) order: np.unique(axis=0, return_index=True) on one integer key per cell, without
+    its slow row-wise path."""
+    return np.unique(cells[:, 0] * width + cells[:, 1], return_index=True)[1]
 
 
 @lru_cache(maxsize=4)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 INT8_MODEL = "paper-int8"  # the default where the CPU has 8-bit dot products (default_model)
 FLOAT_MODEL = "paper"  # the default elsewhere: the same network and figures in float32
+DEFAULT_HELP = "default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI"  # for --model help texts
 _INT8_DOT_FEATURES = ("AVX512VNNI", "AVX512_CLX", "AVX512_ICL", "AVX512_SPR")  # numpy's names for x86 VNNI
 _INT8_DOT_FLAGS = ("avx512_vnni", "avx_vnni", "amx_int8")  # /proc/cpuinfo's, incl. AVX-VNNI, which numpy does not name
 
