@@ -85,8 +85,11 @@ _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
 _NEARBY = sorted(((i, j) for i in range(-3, 4) for j in range(-3, 4)), key=lambda q: (abs(q[0]) + abs(q[1]), q))
 _REACH = 4  # a position's prediction and axes use filled positions up to this many steps away
-_NEAR_R = np.array([q[0] for q in _NEARBY])[None]
-_NEAR_C = np.array([q[1] for q in _NEARBY])[None]
+_AXES_SHIFTS = ((0, 0), (0, 1), (0, 2), (1, 0), (2, 0))  # _axes reads the _NEARBY cells, then them shifted 1
+# and 2 steps along +col and along +row, in one gather
+_AXES_R = np.array([[dr + q[0] for dr, _ in _AXES_SHIFTS for q in _NEARBY]])
+_AXES_C = np.array([[dc + q[1] for _, dc in _AXES_SHIFTS for q in _NEARBY]])
+CANVAS_START = 16  # a new canvas holds this many cells each way from its seed (padding it costs more than its size)
 CANVAS_MARGIN = 8  # empty grid cells kept around a growing board: lookups from the frontier (or a
 # position beyond a hole, 2 cells out) reach 3 + 2 cells further, and must stay on the canvas
 _PRED_R = np.array([[k * dr for k in (1, 2, 3) for dr, _ in _DIRECTIONS]
@@ -131,9 +134,13 @@ class _Grower:
         self.sign = 1.0
         self.threshold = MIN_CONTRAST
 
-    def point(self, idx: int) -> np.ndarray:
-        """Position of corner idx: a given one, or one this grower added."""
-        return self.xy[idx] if idx < len(self.xy) else self.added[idx - self.first_added]
+    def points(self, idx: np.ndarray) -> np.ndarray:
+        """Positions (K, 2) of corners idx (K,): given ones, or ones this grower added."""
+        out = self.xy[np.minimum(idx, len(self.xy) - 1)]
+        mine = idx >= len(self.xy)
+        if mine.any():
+            out[mine] = np.asarray(self.added)[idx[mine] - self.first_added]
+        return out
 
     def seed(self, corners: np.ndarray, sign: float, contrast: float) -> None:
         """Start the grid from a verified square (_seed_squares): corners (0,0), (0,1), (1,0), (1,1)."""
@@ -143,12 +150,15 @@ class _Grower:
 
     # --- the lattice canvas: positions of the grid cells, NaN where empty -------------------------
 
-    def _ensure_margin(self) -> None:
-        """Keep CANVAS_MARGIN empty cells around the filled ones, growing the canvas as needed."""
-        rows, cols = np.nonzero(self.idx >= 0)
+    def _ensure_margin(self, rc: np.ndarray) -> None:
+        """Keep CANVAS_MARGIN empty cells around the filled ones, growing the canvas as needed; rc
+        (K, 2): the cells just filled (the others already have their margin)."""
+        if len(rc) == 0:
+            return
+        (top, left), (bottom, right) = rc.min(0), rc.max(0)
         h, w = self.idx.shape
-        before = (max(0, CANVAS_MARGIN - rows.min()), max(0, CANVAS_MARGIN - cols.min()))
-        after = (max(0, rows.max() + CANVAS_MARGIN + 1 - h), max(0, cols.max() + CANVAS_MARGIN + 1 - w))
+        before = (max(0, CANVAS_MARGIN - top), max(0, CANVAS_MARGIN - left))
+        after = (max(0, bottom + CANVAS_MARGIN + 1 - h), max(0, right + CANVAS_MARGIN + 1 - w))
         if any(before) or any(after):
             grow = ((before[0] + 8 * bool(before[0]), after[0] + 8 * bool(after[0])),
                     (before[1] + 8 * bool(before[1]), after[1] + 8 * bool(after[1])))
@@ -160,16 +170,16 @@ class _Grower:
 
     def _place(self, cells: np.ndarray, idx: np.ndarray) -> None:
         """Fill cells (K, 2) (canvas-relative to origin) with corners idx (K,)."""
-        if self.pos is None:
-            size = 2 * CANVAS_MARGIN + 2
+        if self.pos is None:  # room for CANVAS_START cells each way from the seed before any padding
+            size = 2 * CANVAS_START + 2
             self.pos = np.full((size, size, 2), np.nan)
             self.idx = np.full((size, size), -1, np.int64)
             self.stale = np.zeros((size, size), bool)
             self.tried = np.zeros((size, size), bool)
-            self.origin = np.array([CANVAS_MARGIN, CANVAS_MARGIN])
+            self.origin = np.array([CANVAS_START, CANVAS_START])
         rc = cells + self.origin
         self.idx[rc[:, 0], rc[:, 1]] = idx
-        self.pos[rc[:, 0], rc[:, 1]] = np.array([self.point(i) for i in idx]).reshape(-1, 2)
+        self.pos[rc[:, 0], rc[:, 1]] = self.points(idx)
         given = idx[idx < len(self.free)]
         self.free[given] = False
         near = np.zeros(self.idx.shape, np.uint8)  # failed positions near a change may pass now
@@ -178,7 +188,7 @@ class _Grower:
         # a completion fit that failed next to a new corner is tried again: its prediction now has
         # more support (a hole first predicted from one side fits once its other sides are filled)
         self.tried &= cv2.dilate(near, np.ones((3, 3), np.uint8)) == 0
-        self._ensure_margin()
+        self._ensure_margin(rc)
 
     def _gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Positions (..., 2) at canvas cells (rows, cols), NaN where empty (the canvas margin keeps
@@ -188,12 +198,11 @@ class _Grower:
     def _axes(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The lattice steps along +col (u) and +row (v) nearest to each canvas cell (K, 2): from the
         nearest filled pair (_NEARBY order), or across a hole (halved); NaN without one."""
-        a = self._gather(cells[:, 0:1] + _NEAR_R, cells[:, 1:2] + _NEAR_C)  # (K, 49, 2)
+        gathered = self._gather(cells[:, 0:1] + _AXES_R, cells[:, 1:2] + _AXES_C)
+        a, *beyond = np.split(gathered, len(_AXES_SHIFTS), 1)  # each (K, 49, 2)
         steps = []
-        for dr, dc in ((0, 1), (1, 0)):
-            diffs = [(self._gather(cells[:, 0:1] + _NEAR_R + k * dr, cells[:, 1:2] + _NEAR_C + k * dc) - a) / k
-                     for k in (1, 2)]
-            diff = np.concatenate(diffs, 1)  # (K, 98, 2): all one-step pairs first, nearest first
+        for one, two in (beyond[0:2], beyond[2:4]):  # along +col, then +row
+            diff = np.concatenate([one - a, (two - a) / 2], 1)  # (K, 98, 2): all one-step pairs first, nearest first
             valid = np.isfinite(diff[..., 0])
             first = valid.argmax(1)
             found = diff[np.arange(len(cells)), first]
@@ -308,13 +317,14 @@ class _Grower:
                 return
             self._place(cells[ok[joined]] - self.origin, corners[joined])
 
-    def _complete(self) -> bool:
-        """One round of completion over the frontier: the image's saddle points near the predictions
-        (one vectorised fit), added where they pass the image test; True if any was."""
-        cells = self._frontier()
-        cells = cells[~self.tried[cells[:, 0], cells[:, 1]]]
+    def _complete(self, cells: np.ndarray, support: tuple[np.ndarray, ...]) -> bool:
+        """One round of completion over the frontier `cells` (with their _support): the image's
+        saddle points near the predictions (one vectorised fit), added where they pass the image
+        test; True if any was."""
+        untried = ~self.tried[cells[:, 0], cells[:, 1]]
+        cells = cells[untried]
         self.tried[cells[:, 0], cells[:, 1]] = True
-        preds, tol, u, v = self._support(cells)
+        preds, tol, u, v = (part[untried] for part in support)
         h, w = self.gray.shape
         ok = (np.isfinite(tol) & (preds[:, 0] >= 0) & (preds[:, 0] <= w - 1) & (preds[:, 1] >= 0)
               & (preds[:, 1] <= h - 1))
@@ -359,24 +369,24 @@ class _Grower:
         neighbour, nor a position beyond a hole, nor (completing) a corner from the image is added."""
         self._grow_by_homography()
         while True:
+            # the frontier's support serves all three steps: the canvas only changes when one adds
             cells = self._frontier()
-            cells = cells[~self.stale[cells[:, 0], cells[:, 1]]]
-            preds, tol, u, v = self._support(cells)
-            known = np.isfinite(tol)
+            support = preds, tol, u, v = self._support(cells)
+            fresh = ~self.stale[cells[:, 0], cells[:, 1]]
+            known = fresh & np.isfinite(tol)
             filled = np.zeros(len(cells), bool)
             origin = self.origin.copy()
             filled[known] = self._take(cells[known], preds[known], tol[known], u[known], v[known])
-            failed = cells[~filled] + (self.origin - origin)  # the canvas may have grown
+            failed = cells[fresh & ~filled] + (self.origin - origin)  # the canvas may have grown
             self.stale[failed[:, 0], failed[:, 1]] = True
-            if filled.any() or self._jump_holes() or (self.gray is not None and self._complete()):
+            if filled.any() or self._jump_holes(cells, tol) or (self.gray is not None and self._complete(cells, support)):
                 continue
             return
 
-    def _jump_holes(self) -> bool:
-        """Positions two steps beyond the frontier along a row or column (across a one-corner hole)."""
-        cells = self._frontier()
+    def _jump_holes(self, cells: np.ndarray, tol: np.ndarray) -> bool:
+        """Positions two steps beyond the frontier `cells` (tolerances `tol`, from _support) along a
+        row or column (across a one-corner hole)."""
         targets, preds, tols = [], [], []
-        _, tol, _, _ = self._support(cells)
         for dr, dc in _DIRECTIONS:
             p1 = self._gather(cells[:, 0] + dr, cells[:, 1] + dc)
             p2 = self._gather(cells[:, 0] + 2 * dr, cells[:, 1] + 2 * dc)
@@ -701,7 +711,7 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
         free[idx[idx < n]] = False  # a board of another size still owns its corners
         batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
         added.extend(grower.added)
-        oriented = _orient(grid, np.array([grower.point(i) for i in idx]), grower.sign, board_size, allow_partial)
+        oriented = _orient(grid, grower.points(idx), grower.sign, board_size, allow_partial)
         if oriented is not None:
             found.append((idx, oriented))
     points = np.concatenate([xy, np.reshape(added, (-1, 2))])
