@@ -91,17 +91,17 @@ def to_gray(image: np.ndarray, max_pixels: int = DEFAULT_MAX_PIXELS, source: str
     """Validate an array and convert it to a C-contiguous HxW uint8 gray frame (see module docstring)."""
     if not isinstance(image, np.ndarray):
         raise ImageError(f"{source}: expected a numpy array or a path, got {type(image).__name__}")
-    if image.ndim == 3 and image.shape[2] in (1, 2):
-        image = image[:, :, 0]  # gray, or gray + alpha: drop the alpha
-    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (3, 4)):
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (1, 2, 3, 4)):
         raise ImageError(f"{source}: expected HxW gray or HxWx3 BGR / HxWx4 BGRA, got shape {image.shape}")
     if image.shape[0] == 0 or image.shape[1] == 0:
         raise ImageError(f"{source}: empty image, shape {image.shape}")
     _check_pixels((image.shape[1], image.shape[0]), max_pixels, source)
     if not image.dtype.isnative:
         image = image.astype(image.dtype.newbyteorder("="))
-    image = _to_uint8(image, source)
-    if image.ndim == 3:
+    image = _to_uint8(image, source)  # every channel, alpha too: NaN anywhere means a corrupt buffer
+    if image.ndim == 3 and image.shape[2] in (1, 2):
+        image = image[:, :, 0]  # gray, or gray + alpha: drop the alpha
+    elif image.ndim == 3:
         code = cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
         image = cv2.cvtColor(np.ascontiguousarray(image), code)
     return np.ascontiguousarray(image)
