@@ -379,9 +379,10 @@ class _Grower:
             filled[known] = self._take(cells[known], preds[known], tol[known], u[known], v[known])
             failed = cells[fresh & ~filled] + (self.origin - origin)  # the canvas may have grown
             self.stale[failed[:, 0], failed[:, 1]] = True
-            if filled.any() or self._jump_holes(cells, tol) or (self.gray is not None and self._complete(cells, support)):
+            if filled.any() or self._jump_holes(cells, tol):
                 continue
-            return
+            if self.gray is None or not self._complete(cells, support):
+                return
 
     def _jump_holes(self, cells: np.ndarray, tol: np.ndarray) -> bool:
         """Positions two steps beyond the frontier `cells` (tolerances `tol`, from _support) along a
