@@ -177,9 +177,24 @@ def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(exa
     full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(frame)
     assert len(full) >= 50
     assert np.array_equal(coarse.xy, full.xy)
-    # the default cascade: `fast` on the halved frame, the paper net on the full one
-    assert shapes == [(240, 320, "fast"), (480, 640, ccdn.models.default_model())]
+    # the default cascade: `fast` on the halved frame, the paper net on the full one's part where
+    # `fast` responded (ccdn.regions): the board, 256x192 px, and a margin, not the whole frame
+    assert shapes[0] == (240, 320, "fast") and {name for *_, name in shapes[1:]} == {ccdn.models.default_model()}
+    assert sum(h * w for h, w, _ in shapes[1:]) < 0.6 * 480 * 640
     assert coarse.model.startswith(ccdn.models.default_model() + " ")
+
+
+def test_a_frame_without_a_board_runs_the_full_resolution_pass_only_where_the_halved_one_responded(examples):
+    import cv2
+
+    gray = cv2.imread(str(examples["no-board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    frame = np.full_like(gray, int(np.median(gray)))
+    frame[300:420, 40:200] = gray[300:420, 40:200]  # a patch of clutter on a plain wall
+    detector = ccdn.Detector(threads=2)
+    shapes = _network_frames(detector)
+    assert len(detector.detect(frame)) == 0
+    assert shapes[0] == (240, 320, "fast")
+    assert 0 < sum(h * w for h, w, _ in shapes[1:]) <= (120 + 2 * 12 + 16) * (160 + 2 * 12 + 16)  # patch, halo, margin
 
 
 def test_a_named_model_runs_every_pass_itself(examples):
@@ -198,6 +213,22 @@ def test_big_frames_run_in_strips_that_stitch_to_the_whole_frame_scores(detector
     whole = detector.scores(gray)
     stitched = detector._session.scores(gray, strip_pixels=100 * gray.shape[1])  # 5 strips of 100 rows
     np.testing.assert_allclose(stitched, whole, atol=1e-5)
+
+
+@pytest.mark.parametrize("model", ["paper", "fast"])  # input multiples 1 and 4
+def test_scores_in_boxes_equal_the_whole_frame_scores_there_and_zero_elsewhere(examples, model):
+    import cv2
+
+    session = ccdn.Detector(model, threads=2)._session
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    whole = session.scores(gray)
+    boxes = [(101, 230, 37, 300), (0, 50, 590, 640), (400, 480, 0, 21)]  # inside, at two corners of the frame
+    part = session.scores_in(gray, boxes)
+    inside = np.zeros(gray.shape, bool)
+    for top, bottom, left, right in boxes:
+        inside[top:bottom, left:right] = True
+    np.testing.assert_allclose(part[inside], whole[inside], atol=1e-5)
+    assert not part[~inside].any() and whole[~inside].any()
 
 
 def test_unknown_filter_is_refused():

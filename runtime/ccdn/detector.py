@@ -8,10 +8,11 @@ Frames go coarse-to-fine: the network first runs on the frame shrunk by the larg
 that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x, 4x, then 2x).
 When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass finds boards whose
 squares are that big on the shrunk frame, their corners are refined on the full-resolution image
-and the finer passes are skipped; otherwise the next finer pass runs, down to the full frame. Small
-squares and frames without a board therefore pay for the shrunk passes, and a board too small to be
-seen shrunk is lost when another board in the same frame has squares big enough (measured in
-benchmarks/; README).
+and the finer passes are skipped; otherwise the next finer pass runs, down to the full frame, which
+is scored only inside boxes around what the finest shrunk pass responded to (ccdn.regions: a frame
+with nothing there costs no full-resolution network). Small squares and frames without a board
+therefore pay for the shrunk passes, and a board too small to be seen shrunk is lost when another
+board in the same frame has squares big enough (measured in benchmarks/; README).
 
 The default detector is a cascade: the shrunk passes run the cheap `fast` model (COARSE_MODEL),
 whose one weakness, corners closer than ~5 px (its 4x4-pixel output cells), cannot matter there,
@@ -32,6 +33,7 @@ from .edges import NOISY_SIGMA, image_noise, lattice_steps, refine_on_edges
 from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .peaks import find_peaks, kmeans_outliers, suppress
+from .regions import look_boxes
 from .refine import refine, refine_from_shrunk, window_for_spacing
 from .result import Detection
 from .session import ScoreSession
@@ -119,16 +121,17 @@ class Detector:
         clock = _Clock()
         gray = self.load(image)
         clock.lap("load")
-        xy = values = found = None
+        xy = values = found = boxes = None
         model = self.coarse_model
         for scale in _coarse_scales(gray.shape) if self.coarse_to_fine else ():
-            xy, values, found = self._coarse(gray, scale, boards, board_size, clock)
+            xy, values, found, score = self._coarse(gray, scale, boards, board_size, clock)
             if xy is not None:
                 break
+            boxes = look_boxes(score, scale, gray.shape)  # the finest shrunk pass's, in the end
         if xy is None:
             model = self.model
-            xy, values, found = self._corners(gray, gray, 1, *self._peaks(self._session, gray, clock), boards, board_size,
-                                              clock)
+            xy, values, found = self._corners(gray, gray, 1, *self._peaks(self._session, gray, clock, boxes), boards,
+                                              board_size, clock)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
                          found, clock.laps)
 
@@ -137,24 +140,25 @@ class Detector:
         return self._session.scores(self.load(image))
 
     def _coarse(self, gray: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
-        """The pass on gray shrunk `scale` times; (None, None, None) when the squares are too small
-        to trust there (judged first on the peaks, before any refinement, then on the corners found)."""
+        """The pass on gray shrunk `scale` times: (xy, values, boards, its score map), xy, values and
+        boards None when the squares are too small to trust there (judged first on the peaks, before
+        any refinement, then on the corners found)."""
         h, w = gray.shape  # cropped to a multiple of scale: the shrunk pixels then map exactly onto gray's
         small = cv2.resize(gray[: h - h % scale, : w - w % scale], (w // scale, h // scale), interpolation=cv2.INTER_AREA)
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
         if len(xy) < 9 or np.percentile(gaps, 75) < COARSE_MIN_SQUARE:
-            return None, None, None
+            return None, None, None, score
         xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
         if len(xy) < 9 or np.median(_gaps(xy)) / scale < COARSE_MIN_SQUARE:
-            return None, None, None
-        return xy, values, found
+            return None, None, None, score
+        return xy, values, found, score
 
-    def _peaks(self, session: ScoreSession, frame: np.ndarray, clock: _Clock):
-        """The score map of `session`'s network on `frame`, its peaks (xy, values) after the filter
-        and their gaps (_gaps)."""
-        score = session.scores(frame)
+    def _peaks(self, session: ScoreSession, frame: np.ndarray, clock: _Clock, boxes=None):
+        """The score map of `session`'s network on `frame` (only inside `boxes` when given: ccdn.regions),
+        its peaks (xy, values) after the filter and their gaps (_gaps)."""
+        score = session.scores(frame) if boxes is None else session.scores_in(frame, boxes)
         clock.lap("network")
         xy, values = find_peaks(score, self.relative, self.floor)
         if self.filter == "kmeans" and len(xy):

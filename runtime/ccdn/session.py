@@ -109,6 +109,20 @@ class ScoreSession:
             out[top:bottom] = self._run(gray[a:b])[top - a : bottom - a]
         return out
 
+    def scores_in(self, gray: np.ndarray, boxes: list[tuple[int, int, int, int]]) -> np.ndarray:
+        """(H, W) float32 scores computed only inside `boxes` (top, bottom, left, right), 0 elsewhere.
+
+        Each box runs with its receptive halo around it, from an origin on the model's input
+        multiple, so its scores equal the whole frame's."""
+        h, w = gray.shape
+        out = np.zeros((h, w), np.float32)
+        for top, bottom, left, right in boxes:
+            a = max(top - self.halo, 0) // self.multiple * self.multiple
+            c = max(left - self.halo, 0) // self.multiple * self.multiple
+            b, d = min(bottom + self.halo, h), min(right + self.halo, w)
+            out[top:bottom, left:right] = self.scores(gray[a:b, c:d])[top - a : bottom - a, left - c : right - c]
+        return out
+
     def _run(self, gray: np.ndarray) -> np.ndarray:
         """The network on one frame, padded (edge pixels repeated) to the model's input multiple."""
         h, w = gray.shape

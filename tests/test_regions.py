@@ -1,0 +1,51 @@
+"""ccdn.regions: the boxes the full-resolution pass of coarse-to-fine looks at, from a shrunk pass's scores."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+import ccdn
+from ccdn.regions import LOOK_SCORE, _nested, look_boxes
+
+
+def _inside(xy: np.ndarray, boxes) -> np.ndarray:
+    """For each (x, y), whether some box (top, bottom, left, right) holds its pixel."""
+    col, row = np.rint(xy).astype(int).T
+    return np.any([(top <= row) & (row < bottom) & (left <= col) & (col < right) for top, bottom, left, right in boxes], 0)
+
+
+def test_boxes_hold_every_corner_of_a_board_too_small_for_the_halved_frame(examples):
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    frame = np.full_like(gray, int(np.median(gray)))
+    frame[150:342, 200:456] = cv2.resize(gray, (256, 192), interpolation=cv2.INTER_AREA)  # ~10 px squares
+    corners = (examples["board"]["corners"] + 0.5) * 0.4 - 0.5 + [200, 150]
+    halved = cv2.resize(frame, (320, 240), interpolation=cv2.INTER_AREA)
+    score = ccdn.Detector("fast", threads=2)._session.scores(halved)
+    boxes = look_boxes(score, 2, frame.shape)
+    assert boxes and _inside(corners, boxes).all()
+    assert sum((b - t) * (r - l) for t, b, l, r in boxes) < 0.3 * frame.size
+
+
+def test_a_quiet_score_map_needs_no_box_and_a_busy_one_the_whole_frame():
+    assert look_boxes(np.full((240, 320), LOOK_SCORE / 2, np.float32), 2, (480, 640)) == []
+    busy = np.zeros((240, 320), np.float32)
+    busy[::8, ::8] = 1.0  # responses everywhere: boxes would cover the frame
+    assert look_boxes(busy, 2, (480, 640)) is None
+
+
+def test_a_box_at_the_shrunk_frame_edge_reaches_the_full_frame_edge():
+    score = np.zeros((93, 125), np.float32)  # a 187x251 frame shrunk 2x drops its last row and column
+    score[90, 120] = 1.0
+    (top, bottom, left, right), = look_boxes(score, 2, (187, 251))
+    assert bottom == 187 and right == 251 and top <= 180 and left <= 240
+
+
+def test_a_box_inside_another_is_dropped_and_of_equal_ones_one_is_kept():
+    score = np.zeros((120, 160), np.float32)
+    score[20, 20:61] = score[60, 20:61] = score[20:61, 20] = score[20:61, 60] = 1.0  # a ring...
+    score[40, 40] = 1.0  # ...with a response in its hole: one component inside the other's box
+    (top, bottom, left, right), = look_boxes(score, 2, (240, 320))
+    assert (top, bottom, left, right) == (32, 130, 32, 130)
+    twins = np.array([[0, 10, 0, 10], [0, 10, 0, 10], [2, 8, 2, 8]])
+    assert _nested(twins).tolist() == [False, True, True]
