@@ -5,7 +5,7 @@ and resized to each size, decoded once up front: the timed call goes from a uint
 corners. Each configuration gets a warm-up pass, then `--repeat` passes over all frames; we report
 the median and the 10th/90th percentiles per stage. OpenCV's findChessboardCornersSB, given the true
 board size, runs on the same frames for comparison. Cold start (import + session + first detect)
-is timed in a fresh process; peak RSS is the process's high-water mark after each size.
+is timed in fresh processes (median of 5, bytecode cached); peak RSS is the process's high-water mark after each size.
 
     python benchmarks/latency.py [--models default paper fast] [--repeat 3] [--json out/latency.json]
 """
@@ -81,12 +81,17 @@ def _model_arg(name: str) -> str | None:
     return None if name == "default" else name
 
 
-def cold_start(model: str | None) -> float:
-    """Seconds for import + Detector + first detect, in a fresh interpreter."""
+def cold_start(model: str | None, repeat: int = 5) -> float:
+    """Seconds for import + Detector + first detect of a blank 640x480 frame in a fresh interpreter,
+    median of `repeat`. Python may cache bytecode, as it does by default and as pip does when it
+    installs the wheel (an untimed first run writes the cache): this machine's environment sets
+    PYTHONDONTWRITEBYTECODE, which would make every start compile ccdn's modules again (~35 ms)."""
     code = ("import time; t=time.perf_counter(); import numpy as np, ccdn; "
             f"d=ccdn.Detector({model!r}); d.detect(np.zeros((480, 640), np.uint8)); print(time.perf_counter()-t)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return float(out.stdout.strip())
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+            for _ in range(repeat + 1)]
+    return float(np.median([float(r.stdout.strip()) for r in runs[1:]]))
 
 
 def peak_rss_mb() -> float:
@@ -151,7 +156,8 @@ def format_table(report: dict) -> str:
             ratios.append(f"{run['model']} at {run['size']}, {run['threads']} threads: "
                           f"{opencv[run['size']] / t['median_ms']:.1f}x faster than findChessboardCornersSB")
     lines += ratios
-    lines += [f"cold start {m} (import + session + first 640x480 detect): {v:.0f} ms" for m, v in report["cold_start_ms"].items()]
+    lines += [f"cold start {m} (import + session + first detect of a blank 640x480 frame, median of 5): {v:.0f} ms"
+              for m, v in report["cold_start_ms"].items()]
     lines += [f"{k}: {v:.0f}" for k, v in report.items() if k.startswith("peak_rss")]
     return "\n".join(lines)
 

@@ -37,6 +37,7 @@ from .regions import look_boxes
 from .refine import refine, refine_from_shrunk, window_for_spacing
 from .result import Detection
 from .session import ScoreSession
+from .stats import median, quantile
 
 ImageInput = str | os.PathLike | np.ndarray
 FILTERS = ("grid", "kmeans", "none")
@@ -148,10 +149,10 @@ class Detector:
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
-        if len(xy) < 9 or np.percentile(gaps, 75) < COARSE_MIN_SQUARE:
+        if len(xy) < 9 or quantile(gaps, 0.75) < COARSE_MIN_SQUARE:
             return None, None, None, score
         xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
-        if len(xy) < 9 or np.median(_gaps(xy)) / scale < COARSE_MIN_SQUARE:
+        if len(xy) < 9 or median(_gaps(xy)) / scale < COARSE_MIN_SQUARE:
             return None, None, None, score
         return xy, values, found, score
 
@@ -173,7 +174,7 @@ class Detector:
         """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `gaps`: theirs, in
         frame pixels) refined on gray, then the boards they form."""
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
-        radius = window_for_spacing(np.median(gaps) * scale)
+        radius = window_for_spacing(median(gaps) * scale)
         if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
             refined, ok = refine_from_shrunk(gray, frame, xy, scale, radius, COARSE_MAX_SHIFT * scale)
         else:

@@ -26,7 +26,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .grid import Board, nanmedian_rows
+from .grid import Board
+from .stats import nanmedian_rows
 
 NOISY_SIGMA = 5.0  # grey levels of image noise from which board corners are refined on their edges
 NOISE_SAMPLE_PIXELS = 1 << 17  # the noise estimate's median is taken over about this many pixels

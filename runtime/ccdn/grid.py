@@ -65,6 +65,7 @@ import numpy as np
 
 from .checker import MIN_CONTRAST, Sampler, quad_differences, x_like
 from .refine import refine_saddle_points, window_for_spacing
+from .stats import median, nanmedian_rows
 
 MIN_CORNERS = 8
 MIN_EXTENT = 3
@@ -232,11 +233,11 @@ class _Grower:
         diffs, spread = quad_differences(self.sampler, points, u, v)
         diffs *= (parity * self.sign)[:, None]
         finite = np.isfinite(diffs)
-        median = nanmedian_rows(diffs)
+        typical = nanmedian_rows(diffs)
         low, high = np.where(finite, diffs, np.inf).min(1), np.where(finite, diffs, -np.inf).max(1)
-        ok = (finite.sum(1) >= 1) & (median > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
+        ok = (finite.sum(1) >= 1) & (typical > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
         if strict:
-            ok &= (low > 0.4 * median) & (spread < 0.5 * median)
+            ok &= (low > 0.4 * typical) & (spread < 0.5 * typical)
         return ok
 
     def _frontier(self) -> np.ndarray:
@@ -334,9 +335,9 @@ class _Grower:
         cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
         if len(cells) == 0:
             return False
-        radius = window_for_spacing(float(np.median(tol)) / TOLERANCE)
+        radius = window_for_spacing(float(median(tol)) / TOLERANCE)
         points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, max_shift=float(tol.max()),
-                                            wide=int(np.clip(np.median(tol), radius + 2, 8)))
+                                            wide=int(np.clip(median(tol), radius + 2, 8)))
         points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
@@ -459,19 +460,6 @@ class _Grower:
         return rc - self.origin, self.idx[rc[:, 0], rc[:, 1]]
 
 
-def nanmedian_rows(a: np.ndarray) -> np.ndarray:
-    """Median along axis 1 ignoring NaN (NaN where a row has none): np.nanmedian without its slow
-    masked-array path, for the few values per row used here."""
-    ordered = np.sort(a, axis=1)  # NaNs sort last
-    finite = np.isfinite(ordered)
-    n = (finite if a.ndim == 2 else finite[..., 0]).sum(1)
-    rows = np.arange(len(a))
-    lo, hi = np.maximum((n - 1) // 2, 0), np.minimum(n // 2, a.shape[1] - 1)
-    median = (ordered[rows, lo] + ordered[rows, hi]) / 2
-    median[n == 0] = np.nan
-    return median
-
-
 def _project_with_steps(homography: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Image positions (K, 2) of grid points (col, row) (K, 2) under a homography, and the steps
     to their +col and +row neighbours (u, v)."""
@@ -580,8 +568,8 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
         spread = np.maximum(seed_spread, spread.reshape(-1, 3).max(1))
-        g_sign[t] = np.sign(np.median(diffs, axis=1))
-        g_contrast[t] = np.median(diffs * g_sign[t][:, None], axis=1)
+        g_sign[t] = np.sign(median(diffs, axis=1))
+        g_contrast[t] = median(diffs * g_sign[t][:, None], axis=1)
         with np.errstate(invalid="ignore"):
             passed[t] = ((g_sign[t] != 0) & (spread < 0.5 * g_contrast[t])
                          & (np.min(diffs * g_sign[t][:, None], axis=1) > np.maximum(MIN_CONTRAST, 0.4 * g_contrast[t])))
