@@ -229,6 +229,7 @@ def test_scores_in_boxes_equal_the_whole_frame_scores_there_and_zero_elsewhere(e
         inside[top:bottom, left:right] = True
     np.testing.assert_allclose(part[inside], whole[inside], atol=1e-5)
     assert not part[~inside].any() and whole[~inside].any()
+    assert not session.scores_in(gray, []).any()  # nothing to look at: no network run, an empty map
 
 
 def test_unknown_filter_is_refused():
