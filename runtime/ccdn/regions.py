@@ -17,7 +17,8 @@ import numpy as np
 
 LOOK_SCORE = 0.1  # shrunk score at or above which the full frame is looked at (the peaks' floor is 0.25)
 LOOK_MARGIN = 4  # shrunk px around those pixels
-WHOLE_FRAME_SHARE = 0.6  # boxes covering more of the frame than this: run the whole frame instead
+WHOLE_FRAME_SHARE = 0.6  # boxes covering more of the frame than this: run the whole frame instead (a box
+# costs more per pixel than the whole frame: its halo, one more network call)
 
 
 def look_boxes(score: np.ndarray, scale: int, shape: tuple[int, int]) -> list[tuple[int, int, int, int]] | None:
@@ -29,7 +30,7 @@ def look_boxes(score: np.ndarray, scale: int, shape: tuple[int, int]) -> list[tu
     if not look.any():
         return []
     look = cv2.dilate(look, np.ones((2 * LOOK_MARGIN + 1, 2 * LOOK_MARGIN + 1), np.uint8))
-    count, _, stats, _ = cv2.connectedComponentsWithStats(look, connectivity=8)
+    _, _, stats, _ = cv2.connectedComponentsWithStats(look, connectivity=8)
     x, y, bw, bh = (stats[1:, i].astype(np.int64) for i in range(4))
     small_h, small_w = score.shape
     # a box at the shrunk frame's far edge reaches the full frame's (a shrunk frame drops h % scale rows)
