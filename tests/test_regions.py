@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 import ccdn
-from ccdn.regions import LOOK_SCORE, _nested, look_boxes
+from ccdn.regions import LOOK_SCORE, MAX_BOXES, _nested, look_boxes
 
 
 def _inside(xy: np.ndarray, boxes) -> np.ndarray:
@@ -49,3 +49,10 @@ def test_a_box_inside_another_is_dropped_and_of_equal_ones_one_is_kept():
     assert (top, bottom, left, right) == (32, 130, 32, 130)
     twins = np.array([[0, 10, 0, 10], [0, 10, 0, 10], [2, 8, 2, 8]])
     assert _nested(twins).tolist() == [False, True, True]
+
+
+def test_too_many_scattered_specks_run_the_whole_frame():
+    score = np.zeros((480, 640), np.float32)
+    score[::20, ::20] = 1.0  # 24 x 32 isolated specks: small boxes, but more than MAX_BOXES of them
+    assert 24 * 32 > MAX_BOXES and look_boxes(score, 2, (960, 1280)) is None
+    assert len(look_boxes(score[:60, :80], 2, (960, 1280))) == 12  # a few specks: one box each

@@ -122,15 +122,16 @@ class Detector:
         clock = _Clock()
         gray = self.load(image)
         clock.lap("load")
-        xy = values = found = boxes = None
+        xy = values = found = shrunk = None
         model = self.coarse_model
         for scale in _coarse_scales(gray.shape) if self.coarse_to_fine else ():
             xy, values, found, score = self._coarse(gray, scale, boards, board_size, clock)
             if xy is not None:
                 break
-            boxes = look_boxes(score, scale, gray.shape)  # the finest shrunk pass's, in the end
+            shrunk = score, scale  # the finest shrunk pass's, in the end
         if xy is None:
             model = self.model
+            boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape)
             xy, values, found = self._corners(gray, gray, 1, *self._peaks(self._session, gray, clock, boxes), boards,
                                               board_size, clock)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
@@ -156,7 +157,8 @@ class Detector:
             return None, None, None, score
         return xy, values, found, score
 
-    def _peaks(self, session: ScoreSession, frame: np.ndarray, clock: _Clock, boxes=None):
+    def _peaks(self, session: ScoreSession, frame: np.ndarray, clock: _Clock,
+               boxes: list[tuple[int, int, int, int]] | None = None):
         """The score map of `session`'s network on `frame` (only inside `boxes` when given: ccdn.regions),
         its peaks (xy, values) after the filter and their gaps (_gaps)."""
         score = session.scores(frame) if boxes is None else session.scores_in(frame, boxes)

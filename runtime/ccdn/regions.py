@@ -17,6 +17,8 @@ import numpy as np
 
 LOOK_SCORE = 0.1  # shrunk score at or above which the full frame is looked at (the peaks' floor is 0.25)
 LOOK_MARGIN = 4  # shrunk px around those pixels
+MAX_BOXES = 64  # more boxes than this (scattered specks; the stress renders have at most 30): the whole frame,
+# which also bounds the pairwise nesting test
 WHOLE_FRAME_SHARE = 0.6  # boxes covering more of the frame than this: run the whole frame instead (a box
 # costs more per pixel than the whole frame: its halo, one more network call)
 
@@ -24,13 +26,15 @@ WHOLE_FRAME_SHARE = 0.6  # boxes covering more of the frame than this: run the w
 def look_boxes(score: np.ndarray, scale: int, shape: tuple[int, int]) -> list[tuple[int, int, int, int]] | None:
     """Boxes (top, bottom, left, right) in full-frame pixels of a frame of `shape` where the
     full-resolution network must run, from the `score` map of a pass on it shrunk `scale` times;
-    [] when nothing responded, None when the boxes would cover most of the frame anyway."""
+    [] when nothing responded, None when the whole frame is cheaper (most of it covered, or too many boxes)."""
     h, w = shape
     look = (score >= LOOK_SCORE).astype(np.uint8)
     if not look.any():
         return []
     look = cv2.dilate(look, np.ones((2 * LOOK_MARGIN + 1, 2 * LOOK_MARGIN + 1), np.uint8))
-    _, _, stats, _ = cv2.connectedComponentsWithStats(look, connectivity=8)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(look, connectivity=8)
+    if count - 1 > MAX_BOXES:
+        return None
     x, y, bw, bh = (stats[1:, i].astype(np.int64) for i in range(4))
     small_h, small_w = score.shape
     # a box at the shrunk frame's far edge reaches the full frame's (a shrunk frame drops h % scale rows)
