@@ -146,3 +146,38 @@ def test_the_window_stays_small_on_big_squares_where_a_wide_one_is_worse():
     assert len(errors[6]) >= 4
     rule, wide = (np.concatenate(errors[k]).mean() for k in ("rule", 6))
     assert rule < wide  # measured: 0.125 vs 0.145 px
+
+
+def test_fits_at_sub_pixel_centres_equal_fits_of_the_bilinear_samples(clean_scene):
+    """_fit blends the 4 integer fits around a sub-pixel centre (the fit is linear in the pixels):
+    it must equal the plain fit of the bilinearly sampled patch, inside and at the frame's edge."""
+    from ccdn.refine import _fit, _quadric, _smoothed_around, _weighted_pinv
+
+    x0, y0 = np.floor(clean_scene.corners[0]).astype(int) - 1  # cropped: that corner's window is cut
+    gray = clean_scene.image[y0:, x0:]
+    h, w = gray.shape
+    corners = clean_scene.corners - [x0, y0]
+    corners = corners[(corners >= 0).all(1)]
+    centres = corners[:8] + np.random.default_rng(3).uniform(-0.5, 0.5, (min(8, len(corners)), 2))
+    centres[0] = np.maximum(centres[0], 0)
+    assert (centres[0] < 3).all() and (centres[1:] >= 3).any()
+    quadric = _quadric(3)
+    smoothed = _smoothed_around(gray, centres, 1.2, 12)
+    offset, ok = _fit(smoothed, centres, quadric, 0.0)
+    frame = np.zeros((h, w), np.float32)  # the smoothed pixels, back in frame coordinates
+    for k, (x, y) in enumerate(np.floor(centres).astype(int)):
+        for dy in range(-4, 6):
+            for dx in range(-4, 6):
+                if 0 <= x + dx < w and 0 <= y + dy < h:
+                    frame[y + dy, x + dx] = smoothed.image[y + dy - smoothed.shift[k, 1], x + dx - smoothed.shift[k, 0]]
+    for k, (x, y) in enumerate(centres):
+        sx, sy = x + quadric.ox, y + quadric.oy
+        inside = (sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1)
+        x0, y0 = np.floor(np.clip(sx, 0, w - 1)).astype(int), np.floor(np.clip(sy, 0, h - 1)).astype(int)
+        fx, fy = np.clip(sx, 0, w - 1) - x0, np.clip(sy, 0, h - 1) - y0
+        x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+        values = ((1 - fx) * (1 - fy) * frame[y0, x0] + fx * (1 - fy) * frame[y0, x1] + (1 - fx) * fy * frame[y1, x0]
+                  + fx * fy * frame[y1, x1])
+        a, b, c, d, e, _ = _weighted_pinv(quadric.design, quadric.weight * inside) @ values
+        expected = np.linalg.solve([[2 * a, b], [b, 2 * c]], [-d, -e])
+        assert np.allclose(offset[k], expected, atol=1e-6), k

@@ -17,6 +17,7 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -40,14 +41,18 @@ def window_for_spacing(spacing: float) -> int:
 @dataclass(frozen=True)
 class _Quadric:
     """The least-squares quadric fit on a (2r+1)^2 patch: its radius r, offsets, design matrix,
-    squared weights and, for patches wholly inside the image, the fit's pseudo-inverse (read-only arrays)."""
+    weights, the fit's weighted pseudo-inverse (6, P) for patches wholly inside the image, and
+    `shifted`: that pseudo-inverse placed at each of the 4 corners of a (2r+2)^2 patch, (24, (2r+2)^2),
+    so that a fit at a sub-pixel centre is the bilinear blend of the 4 integer fits around it (the fit
+    is linear in the pixels, and so is bilinear sampling), read from one integer patch (read-only arrays)."""
 
     radius: int
     ox: np.ndarray
     oy: np.ndarray
     design: np.ndarray
-    weight2: np.ndarray
+    weight: np.ndarray
     pinv: np.ndarray
+    shifted: np.ndarray
 
 
 @lru_cache(maxsize=16)
@@ -56,13 +61,62 @@ def _quadric(radius: int) -> _Quadric:
     oy, ox = np.mgrid[-radius : radius + 1, -radius : radius + 1]
     ox, oy = ox.ravel().astype(np.float64), oy.ravel().astype(np.float64)
     sigma = radius  # weight the centre more: the quadric only models the corner's neighbourhood
-    w = np.exp(-(ox**2 + oy**2) / (2 * sigma**2))
+    weight = np.exp(-(ox**2 + oy**2) / (2 * sigma**2))
     design = np.stack([ox * ox, ox * oy, oy * oy, ox, oy, np.ones_like(ox)], 1)
-    pinv = np.linalg.pinv(design * w[:, None]) * w[None, :]
-    fit = _Quadric(radius, ox.astype(np.int64), oy.astype(np.int64), design, w * w, pinv)
-    for a in (fit.ox, fit.oy, fit.design, fit.weight2, fit.pinv):
+    pinv = _weighted_pinv(design, weight)
+    side = 2 * radius + 1
+    shifted = np.zeros((4, 6, side + 1, side + 1))
+    for k, (dy, dx) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):  # the bilinear weights' order in _fit
+        shifted[k, :, dy : dy + side, dx : dx + side] = pinv.reshape(6, side, side)
+    fit = _Quadric(radius, ox.astype(np.int64), oy.astype(np.int64), design, weight, pinv,
+                   shifted.reshape(24, (side + 1) ** 2))
+    for a in (fit.ox, fit.oy, fit.design, fit.weight, fit.pinv, fit.shifted):
         a.setflags(write=False)
     return fit
+
+
+class _FitsInside:
+    """The quadric fits (6, P) over only the part of a window the frame's edge leaves, one per
+    rectangle of offsets met (first..last per axis; the other pixels get weight 0), kept in one
+    array so that a call's K cut windows gather theirs in one step (a frame's share a few)."""
+
+    def __init__(self, radius: int) -> None:
+        self.radius = radius
+        self._row: dict[int, int] = {}
+        self._table = np.zeros((0, 6, (2 * radius + 1) ** 2))
+        self._lock = threading.Lock()
+
+    def __call__(self, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+        """(K, 6, P) for first, last: (K, 2) int offsets (x, y) in -radius..radius."""
+        r, side = self.radius, 2 * self.radius + 1
+        keys = (((first + r) * side + last + r) @ np.array([side * side, 1])).tolist()
+        with self._lock:
+            missing = [key for key in dict.fromkeys(keys) if key not in self._row]
+            if missing:
+                self._table = np.concatenate([self._table, np.stack([self._fit(key) for key in missing])])
+                self._row.update((key, len(self._row)) for key in missing)
+            table, row = self._table, self._row
+        return table[[row[key] for key in keys]]
+
+    def _fit(self, key: int) -> np.ndarray:
+        """The fit for one key (as __call__ encodes it)."""
+        r, side = self.radius, 2 * self.radius + 1
+        x, y = divmod(key, side * side)
+        (first_x, last_x), (first_y, last_y) = divmod(x, side), divmod(y, side)
+        fit = _quadric(r)
+        inside = (fit.ox >= first_x - r) & (fit.ox <= last_x - r) & (fit.oy >= first_y - r) & (fit.oy <= last_y - r)
+        return _weighted_pinv(fit.design, fit.weight * inside)
+
+
+@lru_cache(maxsize=16)
+def _fits_inside(radius: int) -> _FitsInside:
+    """The _FitsInside of a window radius (one per radius, shared by all detectors and threads)."""
+    return _FitsInside(radius)
+
+
+def _weighted_pinv(design: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """(6, P): the weighted least-squares fit of design's columns (P, 6) to P pixel values."""
+    return np.linalg.pinv(design * weight[:, None]) * weight[None, :]
 
 
 def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigma: float = 1.2,
@@ -95,7 +149,7 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
         if not step.any():
             break
         centre = centre + step
-    refined = centre + offset
+    refined = centre + np.where(ok[:, None], offset, 0)  # where not converged: left where it was
     for _ in range(SUBPIXEL_ITERATIONS):  # re-fit centred on the estimate: the fit is least biased there
         again, ok_again = _fit(smoothed, refined, quadric, min_saddle)
         move = ok & ok_again & np.all(np.abs(again) <= 0.5, 1)
@@ -118,45 +172,85 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
 
 
 def _fit(smoothed: _Smoothed, centre: np.ndarray, quadric: _Quadric, min_saddle: float) -> tuple[np.ndarray, np.ndarray]:
-    """One quadric fit around each centre (N, 2) (frame pixels; sub-pixel centres are sampled
-    bilinearly): the offsets (N, 2) to the stationary points and whether each is a saddle.
-    Patches reaching off the frame are fitted on their pixels inside it, so corners at the frame's
-    edge refine too."""
+    """One quadric fit around each centre (N, 2) (frame pixels; at sub-pixel centres the patch is
+    sampled bilinearly, exactly: _Quadric.shifted): the offsets (N, 2) to the stationary points and
+    whether each is a saddle. Patches reaching off the frame are fitted on their pixels inside it,
+    so corners at the frame's edge refine too."""
     h, w = smoothed.frame_shape
     r = quadric.radius
-    cx, cy = centre[:, 0:1] - smoothed.shift[:, 0:1], centre[:, 1:2] - smoothed.shift[:, 1:2]  # in the smoothed image
-    sx, sy = cx + quadric.ox[None], cy + quadric.oy[None]
-    lo, hi = smoothed.low, smoothed.high
-    if not ((cx[:, 0] - r >= lo[:, 0]) & (cx[:, 0] + r <= hi[:, 0]) & (cy[:, 0] - r >= lo[:, 1])
-            & (cy[:, 0] + r <= hi[:, 1])).all():  # clamped: never into another patch (a no-op otherwise)
-        sx = np.minimum(np.maximum(sx, lo[:, 0:1]), hi[:, 0:1])
-        sy = np.minimum(np.maximum(sy, lo[:, 1:2]), hi[:, 1:2])
-    if centre.dtype.kind == "i":
-        values = np.ravel(smoothed.image).take(sy * smoothed.image.shape[1] + sx)
+    whole = centre.dtype.kind == "i"
+    floor = centre if whole else np.floor(centre)
+    span = 2 * r + 1 if whole else 2 * r + 2  # the integer patch read: one more row and column to blend
+    patch = _gather(smoothed, floor.astype(np.int64) - smoothed.shift - r, span)  # (N, span^2) float64
+    if whole:
+        coef = patch @ quadric.pinv.T  # (N, 6): a, b, c, d, e, g
     else:
-        values = cv2.remap(smoothed.image, sx.astype(np.float32), sy.astype(np.float32), cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE)
-    values = values.astype(np.float64)
-    coef = values @ quadric.pinv.T  # (N, 6): a, b, c, d, e, g
-    x, y = centre[:, 0], centre[:, 1]
-    cut = np.nonzero((x - r < 0) | (x + r > w - 1) | (y - r < 0) | (y + r > h - 1))[0]  # windows off the frame
+        frac = centre - floor
+        along = np.stack([1 - frac, frac], 1)  # (N, 2 weights, x / y)
+        blend = (along[:, :, None, 1] * along[:, None, :, 0]).reshape(-1, 1, 4)  # (y, x) as in _Quadric.shifted
+        coef = (blend @ (patch @ quadric.shifted.T).reshape(-1, 4, 6))[:, 0]
+    cut = np.nonzero(((centre < r) | (centre > np.array([w - 1 - r, h - 1 - r]))).any(1))[0]  # windows off the frame
     if len(cut):
-        mx, my = centre[cut, 0:1] + quadric.ox[None], centre[cut, 1:2] + quadric.oy[None]
-        inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
-        # weighted normal equations over the pixels inside, one 6x6 system per corner
-        weighted = (quadric.weight2[None] * inside)[:, None, :] * quadric.design.T[None]  # (K, 6, P)
-        normal = weighted @ quadric.design
-        rhs = (weighted @ values[cut][..., None])[..., 0]
-        # the pixels inside form a rectangle: a quadric needs at least 3 of its columns and 3 rows
-        box = inside.reshape(len(cut), 2 * r + 1, 2 * r + 1)
-        solvable = (box.any(1).sum(1) >= 3) & (box.any(2).sum(1) >= 3)
+        if whole:
+            values = patch[cut]
+        else:  # the bilinear samples themselves
+            p = patch[cut].reshape(-1, span, span)
+            k = blend[cut, 0, :, None, None]
+            values = (k[:, 0] * p[:, :-1, :-1] + k[:, 1] * p[:, :-1, 1:] + k[:, 2] * p[:, 1:, :-1]
+                      + k[:, 3] * p[:, 1:, 1:]).reshape(len(cut), -1)
+        # the pixels inside form a rectangle of offsets, first..last per axis: a quadric needs at least 3 of
+        # its columns and 3 rows; each rectangle's fit is computed once (_FitsInside)
+        first = np.ceil(np.maximum(-centre[cut], -r)).astype(np.int64)
+        last = np.floor(np.minimum(np.array([w - 1, h - 1]) - centre[cut], r)).astype(np.int64)
+        solvable = (last - first >= 2).all(1)
         coef[cut] = np.nan
-        coef[cut[solvable]] = np.linalg.solve(normal[solvable], rhs[solvable][..., None])[..., 0]
-    a, b, c, d, e = coef[:, 0], coef[:, 1], coef[:, 2], coef[:, 3], coef[:, 4]
-    det = 4 * a * c - b * b
-    safe = np.where(np.abs(det) < 1e-12, 1e-12, det)
-    offset = np.stack([(b * e - 2 * c * d) / safe, (b * d - 2 * a * e) / safe], 1)
-    return offset, (det < -min_saddle * min_saddle) & np.all(np.isfinite(offset), 1)
+        if solvable.any():
+            coef[cut[solvable]] = (_fits_inside(r)(first[solvable], last[solvable]) @ values[solvable][..., None])[..., 0]
+    # b e - 2 c d, b d - 2 a e, 4 a c - b^2: the stationary point's numerators and the Hessian's determinant
+    terms = (coef[:, :, None] * coef[:, None, :]).reshape(-1, 36) @ _STATIONARY
+    det = terms[:, 2]
+    saddle = det < -min_saddle * min_saddle  # False where the fit failed (NaN)
+    return terms[:, :2] / np.where(saddle, det, -1.0)[:, None], saddle  # offsets of non-saddles mean nothing
+
+
+def _stationary_terms() -> np.ndarray:
+    """(36, 3): the products of the coefficients (a, b, c, d, e, g) pairwise, flattened, -> the terms above."""
+    a, b, c, d, e = range(5)
+    terms = np.zeros((6, 6, 3))
+    for k, products in enumerate(([(b, e, 1), (c, d, -2)], [(b, d, 1), (a, e, -2)], [(a, c, 4), (b, b, -1)])):
+        for i, j, factor in products:
+            terms[i, j, k] += factor / 2  # the outer product holds each product twice, (i, j) and (j, i)
+            terms[j, i, k] += factor / 2
+    terms.setflags(write=False)
+    return terms.reshape(36, 3)
+
+
+_STATIONARY = _stationary_terms()
+
+
+def _gather(smoothed: _Smoothed, top_left: np.ndarray, span: int) -> np.ndarray:
+    """(N, span^2) float64: the span x span pixels of smoothed.image from each top_left (N, 2) (x, y,
+    in the image), clamped to each point's own region (low..high: never into another patch)."""
+    stride = smoothed.image.shape[1]
+    lo, hi = smoothed.low, smoothed.high
+    if ((top_left >= lo) & (top_left + span - 1 <= hi)).all():  # the usual case: one add per pixel
+        index = (top_left[:, 1] * stride + top_left[:, 0])[:, None] + _patch_offsets(span, stride)
+    else:
+        steps = np.arange(span)
+        rows = np.minimum(np.maximum(top_left[:, 1:2] + steps, lo[:, 1:2]), hi[:, 1:2])
+        cols = np.minimum(np.maximum(top_left[:, 0:1] + steps, lo[:, 0:1]), hi[:, 0:1])
+        index = (rows[:, :, None] * stride + cols[:, None, :]).reshape(len(top_left), -1)
+    return np.ravel(smoothed.image).take(index).astype(np.float64)
+
+
+@lru_cache(maxsize=64)
+def _patch_offsets(span: int, stride: int) -> np.ndarray:
+    """(1, span^2): the flat offsets of a span x span patch's pixels from its top-left, in an image
+    `stride` pixels wide (cached: a few (span, stride) pairs recur for every frame)."""
+    steps = np.arange(span)
+    offsets = (steps[:, None] * stride + steps[None, :]).reshape(1, -1)
+    offsets.setflags(write=False)
+    return offsets
 
 
 @dataclass(frozen=True)
@@ -177,9 +271,8 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     pixels only: on a 2000x1500 frame the region cost most of the refinement)."""
     h, w = gray.shape
     margin = int(np.ceil(4 * sigma)) + 1  # beyond the blur's reach the crop edge cannot matter
-    x0, y0 = (max(int(np.floor(xy[:, k].min())) - reach - margin, 0) for k in (0, 1))
-    x1 = min(int(np.ceil(xy[:, 0].max())) + reach + margin + 1, w)
-    y1 = min(int(np.ceil(xy[:, 1].max())) + reach + margin + 1, h)
+    x0, y0 = np.maximum(np.floor(xy.min(0)).astype(np.int64) - reach - margin, 0).tolist()
+    x1, y1 = np.minimum(np.ceil(xy.max(0)).astype(np.int64) + reach + margin + 1, (w, h)).tolist()
     side = 2 * (reach + margin) + 2  # a patch: the reach each way around the rounded point, one pixel for rounding
     n = len(xy)
     if 2 * n * side * side >= (x1 - x0) * (y1 - y0):  # a patch pixel, gathered, costs about two of a slice (measured)
@@ -190,20 +283,24 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     corner = np.floor(xy).astype(np.int64) - reach - margin  # each patch's top-left (x, y) in the frame
     offsets = np.arange(side)
     cols, rows = corner[:, 0:1] + offsets, corner[:, 1:2] + offsets  # (N, side) each
-    patches = gray[np.clip(rows, 0, h - 1)[:, :, None], np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float32)
     col_in, row_in = (cols >= 0) & (cols < w), (rows >= 0) & (rows < h)
     cut = ~(col_in.all(1) & row_in.all(1))
-    patches[cut] *= (row_in[cut, :, None] & col_in[cut, None, :])
-    stacked = patches.reshape(n * side, side)  # one blur for all: a patch's margin absorbs its neighbours'
+    if cut.any():  # patches the frame's edge cuts: their pixels outside are read clamped, then zeroed
+        rows, cols = np.minimum(np.maximum(rows, 0), h - 1), np.minimum(np.maximum(cols, 0), w - 1)
+    # side by side in one wide image, (row, patch, column): a wide image blurs faster than a tall one (~2x)
+    patches = np.ravel(gray).take(rows.T[:, :, None] * w + cols[None]).astype(np.float32)  # (side, N, side)
+    if cut.any():
+        patches[:, cut] *= row_in[cut].T[:, :, None] & col_in[cut][None]
+    wide = patches.reshape(side, n * side)  # one blur for all: a patch's margin absorbs its neighbours'
     if sigma > 0:
-        stacked = cv2.GaussianBlur(stacked, (_kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
+        wide = cv2.GaussianBlur(wide, (_kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
         if cut.any():  # normalised convolution where the frame's edge cuts a patch (_blur_inside)
             row_mass, col_mass = (_mass_inside(inside[cut], sigma) for inside in (row_in, col_in))
-            blurred = stacked.reshape(n, side, side)
-            blurred[cut] /= np.maximum(row_mass[:, :, None] * col_mass[:, None, :], 1e-12)
-    shift = corner - np.stack([np.zeros(n, np.int64), np.arange(n) * side], 1)
-    low = np.stack([np.zeros(n, np.int64), np.arange(n) * side], 1)
-    return _Smoothed(stacked, shift, low, low + side - 1, (h, w))
+            blurred = wide.reshape(side, n, side)
+            blurred[:, cut] /= np.maximum(row_mass.T[:, :, None] * col_mass[None], 1e-12)
+    low = np.zeros((n, 2), np.int64)
+    low[:, 0] = np.arange(0, n * side, side)
+    return _Smoothed(wide, corner - low, low, low + side - 1, (h, w))
 
 
 def _kernel_size(sigma: float) -> int:
