@@ -6,6 +6,8 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; points are (x, y).
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
@@ -61,10 +63,12 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
     longest = np.maximum(np.hypot(u[:, 0], u[:, 1]), np.hypot(v[:, 0], v[:, 1]))
     radius = np.floor(0.12 * cross / np.maximum(longest, 1e-9)).astype(np.int64)  # well inside a square
-    offsets = reach * np.stack([np.zeros_like(u), u + v, -(u + v), u - v, v - u])  # (S, K, 2)
-    if axes > 0:
-        offsets = np.concatenate([offsets, axes * np.stack([u, -u, v, -v])])
-    n = len(offsets)
+    # (S, K, 2): reach x (0, u + v, -(u + v), u - v, v - u), then axes x (u, -u, v, -v), as one product
+    # over the basis (u + v, u - v, u, v) (its coefficients are 0 and +-1, so each offset is exact)
+    coefficients = _sample_offsets(reach, axes)
+    n = len(coefficients)
+    basis = np.stack([u + v, u - v, u, v]).reshape(4, -1)
+    offsets = (coefficients @ basis).reshape(n, len(p), 2)
     signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)[:, None, :, None]  # (4 quads, 1, 2, 1)
     step = signs[:, :, 0] * u[None] + signs[:, :, 1] * v[None]  # (4, K, 2)
     centre = p[None] + step / 2
@@ -75,6 +79,17 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     spread = np.fmax.reduce(np.fmax.reduce(samples, 1) - np.fmin.reduce(samples, 1), 0)
     pp, pm, mp, mm = np.sort(samples, axis=1)[:, n // 2]  # the median sample
     return np.stack([pp - pm, pp - mp, mm - pm, mm - mp], 1), spread
+
+
+@lru_cache(maxsize=8)
+def _sample_offsets(reach: float, axes: float) -> np.ndarray:
+    """(S, 4): quad_differences' sample offsets over the basis (u + v, u - v, u, v) (read-only)."""
+    rows = [(0, 0, 0, 0), (reach, 0, 0, 0), (-reach, 0, 0, 0), (0, reach, 0, 0), (0, -reach, 0, 0)]
+    if axes > 0:
+        rows += [(0, 0, axes, 0), (0, 0, -axes, 0), (0, 0, 0, axes), (0, 0, 0, -axes)]
+    coefficients = np.array(rows, np.float64)
+    coefficients.setflags(write=False)
+    return coefficients
 
 
 _RING_ANGLES = np.arange(16) * (2 * np.pi / 16)
