@@ -232,10 +232,9 @@ class _Grower:
         parity = np.where((grid.sum(1) % 2) == 0, 1.0, -1.0)
         diffs, spread = quad_differences(self.sampler, points, u, v)
         diffs *= (parity * self.sign)[:, None]
-        finite = np.isfinite(diffs)
-        typical = nanmedian_rows(diffs)
-        low, high = np.where(finite, diffs, np.inf).min(1), np.where(finite, diffs, -np.inf).max(1)
-        ok = (finite.sum(1) >= 1) & (typical > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
+        typical = nanmedian_rows(diffs)  # NaN where every quad pair is off the image: then not ok
+        low, high = np.fmin.reduce(diffs, 1), np.fmax.reduce(diffs, 1)  # over the pairs on the image
+        ok = (typical > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
         if strict:
             ok &= (low > 0.4 * typical) & (spread < 0.5 * typical)
         return ok
