@@ -181,3 +181,21 @@ def test_fits_at_sub_pixel_centres_equal_fits_of_the_bilinear_samples(clean_scen
         a, b, c, d, e, _ = _weighted_pinv(quadric.design, quadric.weight * inside) @ values
         expected = np.linalg.solve([[2 * a, b], [b, 2 * c]], [-d, -e])
         assert np.allclose(offset[k], expected, atol=1e-6), k
+
+
+def test_patches_gathered_in_chunks_refine_the_same(clean_scene, monkeypatch):
+    """The smoothing gathers patches a chunk at a time (bounded index memory): chunks of one patch
+    must give the same corners as one chunk for all. Two copies of the board far apart make the
+    smoothing work on patches rather than on the region the corners span."""
+    import ccdn.refine
+
+    h, w = clean_scene.image.shape
+    frame = np.zeros((3 * h, 3 * w), np.uint8)
+    frame[:h, :w] = frame[2 * h :, 2 * w :] = clean_scene.image
+    start = np.rint(np.concatenate([clean_scene.corners, clean_scene.corners + [2 * w, 2 * h]])).astype(np.int32)
+    assert ccdn.refine._smoothed_around(frame, start, 1.2, 12).image.shape[0] < 100  # patches, side by side
+    whole, ok_whole = refine(frame, start, "saddle")
+    monkeypatch.setattr(ccdn.refine, "GATHER_CHUNK", 1)
+    chunked, ok_chunked = refine(frame, start, "saddle")
+    assert ok_whole.sum() > 0.95 * len(start)
+    assert np.array_equal(ok_whole, ok_chunked) and np.array_equal(whole, chunked)

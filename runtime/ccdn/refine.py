@@ -26,6 +26,7 @@ import numpy as np
 
 METHODS = ("saddle", "cornersubpix", "none")
 SUBPIXEL_ITERATIONS = 2
+GATHER_CHUNK = 1 << 18  # pixels of patches gathered at once (their int64 index: 2 MB)
 
 
 def window_for_spacing(spacing: float) -> int:
@@ -290,8 +291,13 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     cut = ~(col_in.all(1) & row_in.all(1))
     if cut.any():  # patches the frame's edge cuts: their pixels outside are read clamped, then zeroed
         rows, cols = np.minimum(np.maximum(rows, 0), h - 1), np.minimum(np.maximum(cols, 0), w - 1)
-    # side by side in one wide image, (row, patch, column): a wide image blurs faster than a tall one (~2x)
-    patches = np.ravel(gray).take(rows.T[:, :, None] * w + cols[None]).astype(np.float32)  # (side, N, side)
+    # side by side in one wide image, (row, patch, column): a wide image blurs faster than a tall one (~2x);
+    # gathered a chunk of patches at a time, which bounds the int64 index array at GATHER_CHUNK elements
+    patches = np.empty((side, n, side), np.float32)
+    chunk = max(1, GATHER_CHUNK // (side * side))
+    for start in range(0, n, chunk):
+        part = slice(start, start + chunk)
+        patches[:, part] = np.ravel(gray).take(rows[part].T[:, :, None] * w + cols[None, part])
     if cut.any():
         patches[:, cut] *= row_in[cut].T[:, :, None] & col_in[cut][None]
     wide = patches.reshape(side, n * side)  # one blur for all: a patch's margin absorbs its neighbours'
