@@ -334,9 +334,10 @@ class _Grower:
         cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
         if len(cells) == 0:
             return False
-        radius = window_for_spacing(float(median(tol)) / TOLERANCE)
+        typical = float(median(tol))
+        radius = window_for_spacing(typical / TOLERANCE)
         points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, max_shift=float(tol.max()),
-                                            wide=int(np.clip(median(tol), radius + 2, 8)))
+                                            wide=int(np.clip(typical, radius + 2, 8)))
         points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
