@@ -8,7 +8,15 @@ from cv2.projectPoints. Both detectors' corners go through the same ccdn.calibra
 rejection included), so the table compares detection: views found, corner error against the truth, RMS,
 and the focal length / principal point error (distortion coefficients are not compared: they trade off).
 
+--real-dev: the real photos (../shared/data/real-dev) have no true camera, so there the question is
+which corners a camera model explains better. Per camera (source, image size and board, at least 3
+photos) the pinhole model is solved twice with the same function: from the labels (which coincide with
+findChessboardCornersSB's corners) and from ccdn's corners matched to them (nearest within 5 px, so
+both solves use the same board points). A lower RMS reprojection error means corners more consistent
+with one camera and rigid poses; the table also gives how far the two solutions' intrinsics differ.
+
     python benchmarks/calibration.py [--views 20] [--model paper] [--json out/calibration.json]
+    python benchmarks/calibration.py --real-dev [--json out/calibration_real.json]
 """
 
 from __future__ import annotations
@@ -16,15 +24,17 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections import defaultdict
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 import ccdn
-from ccdn.calibration import CalibrationError, View, calibrate
+from ccdn.calibration import MIN_VIEWS, CalibrationError, View, calibrate
 from ccdn.models import DEFAULT_HELP
 
+from accuracy import MATCH_RADIUS, REAL_DEV, real_dev_cases
 from machine import cpu_name
 
 BOARD = (9, 6)
@@ -128,6 +138,52 @@ def evaluate(cam: dict, views: list[View], truths: dict[str, np.ndarray], second
             "cx_err_px": k[0, 2] - true_k[0, 2], "cy_err_px": k[1, 2] - true_k[1, 2]}
 
 
+def real_dev_views(detector: ccdn.Detector) -> dict[tuple, dict[str, list[View]]]:
+    """Per real-dev camera (source, (width, height), board (cols, rows) with cols >= rows): the
+    photos' views from the labels and from ccdn's corners nearest to each label (within
+    MATCH_RADIUS; a label without one is left out of that view). Photos labelled with the board
+    the other way round get (row, col) swapped, so one camera has one board frame."""
+    cameras: dict[tuple, dict[str, list[View]]] = defaultdict(lambda: {"labels": [], "ccdn": []})
+    for group, name, path, labels, sizes in real_dev_cases():
+        if len(sizes) != 1:
+            continue  # every real-dev photo shows one board; a photo with more would need its boards told apart
+        (cols, rows), = sizes
+        grid = np.column_stack(np.divmod(np.arange(len(labels)), cols))  # labels are row-major
+        if cols < rows:
+            grid, cols, rows = grid[:, ::-1], rows, cols
+        result = detector.detect(path)
+        cameras[(group, result.image_size, (cols, rows))]["labels"].append(View(name, labels, grid))
+        if len(result.xy):
+            d = np.linalg.norm(labels[:, None] - result.xy[None].astype(np.float64), axis=2)
+            hit = d.min(1) < MATCH_RADIUS
+            cameras[(group, result.image_size, (cols, rows))]["ccdn"].append(
+                View(name, result.xy[d.argmin(1)[hit]].astype(np.float64), grid[hit]))
+    return {key: views for key, views in cameras.items() if len(views["labels"]) >= MIN_VIEWS}
+
+
+def real_dev_main(detector: ccdn.Detector, report: dict) -> None:
+    """The --real-dev table (module docstring) into report["real_dev"]."""
+    print(f"{'camera':42} {'photos':>6} {'RMS labels':>10} {'RMS ccdn':>8} {'fx diff %':>9} {'cx, cy diff px':>14}")
+    report["real_dev"] = []
+    for (group, size, board), views in sorted(real_dev_views(detector).items()):
+        label = f"{group} {size[0]}x{size[1]} {board[0]}x{board[1]}"
+        try:
+            solved = {k: calibrate(v, size, board, 1.0) for k, v in views.items()}
+        except CalibrationError as exc:
+            print(f"{label:42} calibration failed: {exc}")
+            continue
+        ref, mine = solved["labels"], solved["ccdn"]
+        k0, k1 = ref.camera_matrix, mine.camera_matrix
+        row = {"source": group, "image_size": list(size), "board": list(board), "photos": len(views["labels"]),
+               "views_used": {k: len(c.used) for k, c in solved.items()},
+               "rms_px": {k: c.rms for k, c in solved.items()},
+               "fx_diff_pct": 100 * (k1[0, 0] / k0[0, 0] - 1), "cx_diff_px": k1[0, 2] - k0[0, 2],
+               "cy_diff_px": k1[1, 2] - k0[1, 2]}
+        report["real_dev"].append(row)
+        print(f"{label:42} {row['photos']:>6} {ref.rms:>10.3f} {mine.rms:>8.3f} {row['fx_diff_pct']:>9.2f} "
+              f"{row['cx_diff_px']:>6.2f}, {row['cy_diff_px']:>5.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=20)
@@ -136,11 +192,18 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--real-dev", action="store_true", help="calibrate real-dev's cameras instead (docstring)")
     args = parser.parse_args()
     detector = ccdn.Detector(args.model, args.threads)
-    report = {"board": BOARD, "image_size": SIZE, "views": args.views,
-              "model": f"{detector.model.name} {detector.model.version}",
-              "threads": detector.threads, "cpu": cpu_name(), "cameras": {}}
+    report = {"model": f"{detector.model.name} {detector.model.version}", "threads": detector.threads,
+              "cpu": cpu_name()}
+    if args.real_dev:
+        if not REAL_DEV.is_dir():
+            raise SystemExit(f"no real-dev photos at {REAL_DEV}")
+        real_dev_main(detector, report)
+        write_report(args.json, report)
+        return
+    report.update({"board": BOARD, "image_size": SIZE, "views": args.views, "cameras": {}})
     print(f"{'camera':16} {'detector':8} {'views':>7} {'corner err':>11} {'RMS px':>7} {'fx %':>7} {'fy %':>7} "
           f"{'cx px':>7} {'cy px':>7} {'ms/img':>7}")
     for name, cam in CAMERAS.items():
@@ -160,9 +223,13 @@ def main() -> None:
             print(f"{name:16} {label:8} {row['views_used']:>3}/{args.views:<3} {row['corner_err_mean_px']:>11.3f} "
                   f"{row['rms_px']:>7.3f} {row['fx_err_pct']:>7.3f} {row['fy_err_pct']:>7.3f} {row['cx_err_px']:>7.2f} "
                   f"{row['cy_err_px']:>7.2f} {row['detect_ms_per_image']:>7.0f}")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=1) + "\n")
+    write_report(args.json, report)
+
+
+def write_report(path: Path | None, report: dict) -> None:
+    if path:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(report, indent=1) + "\n")
 
 
 if __name__ == "__main__":
