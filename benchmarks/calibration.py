@@ -195,7 +195,7 @@ def main() -> None:
     parser.add_argument("--real-dev", action="store_true", help="calibrate real-dev's cameras instead (docstring)")
     args = parser.parse_args()
     detector = ccdn.Detector(args.model, args.threads)
-    report = {"model": f"{detector.model.name} {detector.model.version}", "threads": detector.threads,
+    report = {"model": f"{detector.models} {detector.model.version}", "threads": detector.threads,
               "cpu": cpu_name()}
     if args.real_dev:
         if not REAL_DEV.is_dir():
