@@ -26,9 +26,9 @@ the search repeats for further boards. Corners in no board are dropped. Local pr
 tolerant of perspective and strong radial/fisheye distortion.
 
 Completion (complete=True): where no given corner lies near a predicted position, the image itself
-is asked: where the image test passes at the prediction, a saddle point is fitted there
-(ccdn.refine, within the same tolerance) and taken if it passes the ring test and the image test,
-made as strict as the seed's. This recovers the corners the network scored too low (shadowed, blurred,
+is asked: where the image test, made as strict as the seed's, passes at the prediction, a saddle
+point is fitted there (ccdn.refine, within the same tolerance) and taken if it passes the ring test
+and the strict image test. This recovers the corners the network scored too low (shadowed, blurred,
 or first found on a downscaled frame); such corners get indices >= len(xy), in order of addition.
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
@@ -328,9 +328,9 @@ class _Grower:
         h, w = self.gray.shape
         ok = (np.isfinite(tol) & (preds[:, 0] >= 0) & (preds[:, 0] <= w - 1) & (preds[:, 1] >= 0)
               & (preds[:, 1] <= h - 1))
-        # the image test at the predictions first: a saddle fit costs ~30x more, and around a board
-        # most predictions fall on its margin, where no quads alternate
-        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok])
+        # the strict image test at the predictions first: a saddle fit costs ~30x more, and around a
+        # board most predictions fall on its margin, where no quads alternate evenly
+        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], strict=True)
         cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
         if len(cells) == 0:
             return False
