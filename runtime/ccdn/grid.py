@@ -556,6 +556,8 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     first_round = rank < 3  # the image test is the costly part: the shortest squares first ...
     for second in (False, True):  # ... the rest only for the seeds whose shortest all failed
         t = np.nonzero(~first_round & ~np.isin(si, si[passed]) if second else first_round)[0]
+        if len(t) == 0:  # usually the second round: every seed passed with one of its shortest
+            continue
         # the seed corner alone first: passing needs its 4 quad pairs to differ one way by MIN_CONTRAST
         seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM, SEED_AXES)
         alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
