@@ -152,12 +152,12 @@ def real_dev_views(detector: ccdn.Detector) -> dict[tuple, dict[str, list[View]]
         if cols < rows:
             grid, cols, rows = grid[:, ::-1], rows, cols
         result = detector.detect(path)
-        cameras[(group, result.image_size, (cols, rows))]["labels"].append(View(name, labels, grid))
+        camera = cameras[(group, result.image_size, (cols, rows))]
+        camera["labels"].append(View(name, labels, grid))
         if len(result.xy):
             d = np.linalg.norm(labels[:, None] - result.xy[None].astype(np.float64), axis=2)
             hit = d.min(1) < MATCH_RADIUS
-            cameras[(group, result.image_size, (cols, rows))]["ccdn"].append(
-                View(name, result.xy[d.argmin(1)[hit]].astype(np.float64), grid[hit]))
+            camera["ccdn"].append(View(name, result.xy[d.argmin(1)[hit]].astype(np.float64), grid[hit]))
     return {key: views for key, views in cameras.items() if len(views["labels"]) >= MIN_VIEWS}
 
 

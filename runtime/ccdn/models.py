@@ -20,10 +20,11 @@ class ModelError(ValueError):
 def models_dir() -> Path:
     """The bundled models: inside the installed wheel, or the repository's models/ in a checkout
     (beside the package's files: importlib.resources would find the same directory for ~8 ms of imports)."""
-    packaged = Path(__file__).resolve().parent / "models"
+    package = Path(__file__).resolve().parent
+    packaged = package / "models"
     if packaged.is_dir():
         return packaged
-    return Path(__file__).resolve().parents[2] / "models"
+    return package.parents[1] / "models"
 
 
 def available_models() -> list[str]:

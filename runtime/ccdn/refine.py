@@ -124,17 +124,17 @@ def _weighted_pinv(design: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigma: float = 1.2,
                          iterations: int = 3, max_shift: float = 2.0, min_saddle: float = 0.5,
-                         wide: int = 0, subpixel: int = SUBPIXEL_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
+                         wide: int = 0, rough: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Refine integer peaks xy (N, 2) to sub-pixel saddle points of the smoothed image; `wide` >
-    radius: a first pass with that window radius (module docstring); `subpixel`: re-fits centred on
-    the estimate after the whole-pixel steps (0 for a rough pass, whose result the fine pass refits:
-    it also skips the re-fits of corners near the frame's edge with smaller windows).
+    radius: a first pass with that window radius (module docstring); `rough`: a pass whose result
+    only starts a finer one, which refits anyway: no sub-pixel re-fits after the whole-pixel steps
+    and no re-fits of corners near the frame's edge with smaller windows.
 
     Returns refined xy (N, 2) float32 and a converged mask (N,) bool.
     """
     if wide > radius and len(xy):
-        rough, ok = refine_saddle_points(gray, xy, wide, 0.4 * wide, 5, max_shift, min_saddle)
-        fine, ok_fine = refine_saddle_points(gray, np.where(ok[:, None], rough, xy), radius, sigma, iterations,
+        widely, ok = refine_saddle_points(gray, xy, wide, 0.4 * wide, 5, max_shift, min_saddle)
+        fine, ok_fine = refine_saddle_points(gray, np.where(ok[:, None], widely, xy), radius, sigma, iterations,
                                              max_shift, min_saddle)
         ok = ok_fine & (np.hypot(*(fine - xy).T) <= max_shift)
         return np.where(ok[:, None], fine, xy).astype(np.float32), ok
@@ -155,7 +155,7 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
             break
         centre = centre + step
     refined = centre + np.where(ok[:, None], offset, 0)  # where not converged: left where it was
-    for _ in range(subpixel):  # re-fit centred on the estimate: the fit is least biased there
+    for _ in range(0 if rough else SUBPIXEL_ITERATIONS):  # re-fit centred on the estimate: least biased there
         again, ok_again = _fit(smoothed, refined, quadric, min_saddle)
         move = ok & ok_again & np.all(np.abs(again) <= 0.5, 1)
         refined = np.where(move[:, None], refined + again, refined)
@@ -164,16 +164,16 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     ok &= (refined[:, 0] >= 0) & (refined[:, 0] <= w - 1) & (refined[:, 1] >= 0) & (refined[:, 1] <= h - 1)
     # a window cut by the frame's edge is lopsided, which biases the fit (measured: 0.7-1.4 px at
     # 1-3 px from the edge): such corners are fitted again with the largest window that fits (>= 2),
-    # except by a rough pass (subpixel=0), whose result only starts a fine pass that does this itself
+    # except by a rough pass, whose result only starts a fine pass that does this itself
     refined = np.where(ok[:, None], refined, start)
-    if subpixel:
+    if not rough:
         edge = np.floor(np.minimum(np.minimum(refined[:, 0], w - 1 - refined[:, 0]),
                                    np.minimum(refined[:, 1], h - 1 - refined[:, 1]))).astype(np.int64)
         for small in range(2, radius):  # one call per window (_smoothed_around smooths only near the corners)
             group = np.clip(edge, 2, radius) == small
             if group.any():
                 refined[group], ok[group] = refine_saddle_points(gray, refined[group], small, 0.4 * small, iterations,
-                                                                 max_shift, min_saddle, subpixel=subpixel)
+                                                                 max_shift, min_saddle)
     ok &= np.hypot(*(refined - start).T) <= max_shift
     return np.where(ok[:, None], refined, start).astype(np.float32), ok
 
@@ -356,7 +356,7 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
     if len(xy) == 0:
         return start.astype(np.float32), np.zeros(0, bool)
     small = max(3, -(-radius // scale) + 1)  # the fine window on the shrunk frame, and a pixel for the peaks' rounding
-    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 3, max_shift / scale, subpixel=0)
+    rough, ok = refine_saddle_points(shrunk, xy, small, 0.4 * small, 3, max_shift / scale, rough=True)
     begin = np.where(ok[:, None], (rough.astype(np.float64) + 0.5) * scale - 0.5, start)
     fine, ok = refine_saddle_points(gray, begin, radius, 0.4 * radius, max_shift=max_shift)
     ok &= np.hypot(*(fine - start).T) <= max_shift
