@@ -146,6 +146,25 @@ def test_points_on_the_board_outline_do_not_extend_the_board():
         assert sorted((board.cols, board.rows)) == [5, 7]
 
 
+@pytest.mark.parametrize("radius, kept", [(0.3, True), (0.6, False)], ids=["quad centre", "most of the quad"])
+def test_corners_stay_when_an_occluder_covers_the_middle_of_their_square_not_its_corners(radius, kept):
+    """An occluder over the middle of a square fails the quad-centre test at its four corners; each
+    still shows its four quads close by, and they stay in the board. Covering that square up to near
+    its corners (the corners themselves still visible) drops them."""
+    (scene,) = whole_boards(1, board_sizes=((9, 6),), max_tilt_deg=25.0)
+    at = {(int(r), int(c)): p for (r, c), p in zip(scene.grid, scene.corners)}
+    corner = at[(2, 4)]
+    quad = (corner + at[(2, 5)] + at[(3, 4)] + at[(3, 5)]) / 4  # the middle of the square it shares with (3, 5)
+    step = min(np.linalg.norm(at[(2, 5)] - corner), np.linalg.norm(at[(3, 4)] - corner))
+    image = scene.image.copy()
+    light = cv2.getRectSubPix(image, (1, 1), tuple(map(float, quad)))[0, 0] > 127
+    cv2.circle(image, tuple(int(round(c)) for c in quad), int(radius * step), 0 if light else 255, -1)
+    (board,) = find_boards(image, scene.corners, np.ones(len(scene.corners)), board_size=(9, 6))
+    square = np.nonzero(np.isin(scene.grid[:, 0], (2, 3)) & np.isin(scene.grid[:, 1], (4, 5)))[0]
+    assert np.isin(square, board.corner_index).all() if kept else not np.isin(square, board.corner_index).any()
+    assert len(board) == (54 if kept else 50)
+
+
 def test_a_flat_board_grows_ring_at_once_from_its_seed_square():
     """Before any local round, the homography growth alone fills a flat board (the speed-up)."""
     for scene in whole_boards(2, board_sizes=((9, 6),), max_tilt_deg=35.0):

@@ -36,7 +36,14 @@ level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local latti
 to a centre that is off the image) and all four edge-adjacent quad pairs must differ with the
 board's sign (fixed at its seed: quads with even row + col are all dark or all light), their median
 by at least a fifth of the seed's contrast and the weakest by 0.15 of the strongest. This rejects
-false corners and points on the board's outline (where two outside quads are alike).
+false corners and points on the board's outline (where two outside quads are alike). An occluder
+(or another board) over one quad's centre fails that test at a corner the image still shows: a
+corner the network proposed that fails it gets a second chance where the three other quads' pairs
+pass and the four quads alternate close to the corner, sampled 0.36 of the way to their centres,
+with the strict test's even contrast and uniform quads (on the stress benchmark's renders and as
+many held-out ones, 640 in all: 22 of 531 misses fewer, all occluded or behind another board, no
+false positive more; also giving it to completion's corners found 5 more and added 2 false
+positives, on a board's outline next to another board).
 
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
@@ -82,6 +89,9 @@ SEED_AXES = 0.3  # ... and this far along each lattice step: a grid of thin line
 FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ring-at-once growth
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
+NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
+_PAIRS_WITHOUT = np.array([[2, 3], [1, 3], [0, 2], [0, 1]])  # quad_differences' pairs (columns) that
+# leave out quad +u+v, +u-v, -u+v, -u-v
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
 _NEARBY = sorted(((i, j) for i in range(-3, 4) for j in range(-3, 4)), key=lambda q: (abs(q[0]) + abs(q[1]), q))
@@ -229,9 +239,23 @@ class _Grower:
         test of even contrast and uniform quads, which points on a board's outline next to clutter
         fail."""
         grid = cells - self.origin
-        parity = np.where((grid.sum(1) % 2) == 0, 1.0, -1.0)
-        diffs, spread = quad_differences(self.sampler, points, u, v)
-        diffs *= (parity * self.sign)[:, None]
+        sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
+        if strict:  # a corner the image alone proposes gets no second chance
+            diffs, spread = quad_differences(self.sampler, points, u, v)
+            return self._alternate(diffs * sign[:, None], spread, strict)
+        # the second chance (module docstring), sampled in the same call: one quad may be hidden,
+        # the corner's surroundings may not
+        k = len(points)
+        diffs, spread = quad_differences(self.sampler, np.concatenate([points, points]),
+                                         np.concatenate([u, NEAR_QUADS * u]), np.concatenate([v, NEAR_QUADS * v]))
+        diffs *= np.concatenate([sign, sign])[:, None]
+        far, near = diffs[:k], diffs[k:]
+        three_quads = (np.fmin.reduce(far[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
+        return self._alternate(far, spread[:k], strict) | (three_quads & self._alternate(near, spread[k:], True))
+
+    def _alternate(self, diffs: np.ndarray, spread: np.ndarray, strict: bool) -> np.ndarray:
+        """(K,) whether quad pair differences diffs (K, 4), in the board's sign, alternate enough;
+        strict: also evenly, with uniform quads (spread (K,))."""
         typical = nanmedian_rows(diffs)  # NaN where every quad pair is off the image: then not ok
         low, high = np.fmin.reduce(diffs, 1), np.fmax.reduce(diffs, 1)  # over the pairs on the image
         ok = (typical > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
