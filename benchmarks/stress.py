@@ -23,6 +23,7 @@ per image, median over the subset, after one warm-up call. For detectors that in
 wrongly indexed board silently corrupts a calibration.
 
     python benchmarks/stress.py [--per-subset 20] [--subsets clean noise] [--detectors ccdn opencv]
+    python benchmarks/stress.py --skip 20   # the next 20 per subset: a held-out sample of the same conditions
 """
 
 from __future__ import annotations
@@ -125,8 +126,9 @@ def match_radius(scene: Scene) -> float:
     return min(MATCH_RADIUS, 0.5 * closest_spacing(scene))
 
 
-def render_subset(name: str, count: int) -> tuple[list[tuple[int, Scene]], int]:
-    """The first `count` (seed, scene) of a subset that show its condition, and how many seeds were tried."""
+def render_subset(name: str, count: int, skip: int = 0) -> tuple[list[tuple[int, Scene]], int]:
+    """`count` (seed, scene) of a subset that show its condition, after the first `skip` that do (a
+    held-out sample: a change judged on one sample can be checked on another), and how many seeds were tried."""
     cfg = SceneConfig(**{**CALM, **SUBSETS[name]})
     first = SEED_BASE + SEEDS_PER_SUBSET * list(SUBSETS).index(name)
     kept = []
@@ -134,9 +136,9 @@ def render_subset(name: str, count: int) -> tuple[list[tuple[int, Scene]], int]:
         scene = render_scene(np.random.default_rng(seed), cfg)
         if shows_condition(name, scene):
             kept.append((seed, scene))
-            if len(kept) == count:
-                return kept, seed - first + 1
-    raise RuntimeError(f"subset {name}: only {len(kept)} of {count} scenes in its {SEEDS_PER_SUBSET} seeds")
+            if len(kept) == skip + count:
+                return kept[skip:], seed - first + 1
+    raise RuntimeError(f"subset {name}: only {len(kept)} of {skip + count} scenes in its {SEEDS_PER_SUBSET} seeds")
 
 
 def wrongly_indexed(boards: list[tuple[np.ndarray, np.ndarray]], scene: Scene, radius: float) -> tuple[int, int]:
@@ -229,22 +231,24 @@ def main(argv: list[str] | None = None) -> None:
                         help=f"ccdn: bundled model name or .onnx path ({DEFAULT_HELP})")
     parser.add_argument("--threads", type=int, default=None, help="ccdn and OpenCV threads (default: each library's)")
     parser.add_argument("--per-subset", type=int, default=20, help="images per subset")
+    parser.add_argument("--skip", type=int, default=0,
+                        help="leave out each subset's first SKIP images (--skip 20: a held-out sample)")
     parser.add_argument("--subsets", nargs="+", choices=list(SUBSETS), default=list(SUBSETS))
     parser.add_argument("--detectors", nargs="+", choices=DETECTORS, default=DETECTORS)
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "stress.json")
     args = parser.parse_args(argv)
-    if args.per_subset < 1:
-        parser.error("--per-subset must be at least 1")
+    if args.per_subset < 1 or args.skip < 0:
+        parser.error("--per-subset must be at least 1 and --skip at least 0")
 
     t0 = time.time()
     show_bar = sys.stderr.isatty()
-    rendered = {name: render_subset(name, args.per_subset)
+    rendered = {name: render_subset(name, args.per_subset, args.skip)
                 for name in tqdm(args.subsets, unit="subset", desc="render", disable=not show_bar, file=sys.stderr)}
     adapters, skipped = load_adapters(args.detectors, args.model, args.threads)
     result = evaluate({name: scenes for name, (scenes, _) in rendered.items()}, adapters, show_bar)
     for name, (_, tried) in rendered.items():
         result["subsets"][name]["seeds_tried"] = tried
-    result["config"] = {"per_subset": args.per_subset, "calm": CALM,
+    result["config"] = {"per_subset": args.per_subset, "skip": args.skip, "calm": CALM,
                         "seeds": f"tried in order from {SEED_BASE} + {SEEDS_PER_SUBSET} * subset index",
                         "match_radius_px": MATCH_RADIUS, "min_spacing_px": MIN_SPACING_PX, "threads": args.threads,
                         "detectors": {a.name: a.note for a in adapters}, "skipped": skipped,
