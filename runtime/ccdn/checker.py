@@ -69,16 +69,24 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     n = len(coefficients)
     basis = np.stack([u + v, u - v, u, v]).reshape(4, -1)
     offsets = (coefficients @ basis).reshape(n, len(p), 2)
-    signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)[:, None, :, None]  # (4 quads, 1, 2, 1)
-    step = signs[:, :, 0] * u[None] + signs[:, :, 1] * v[None]  # (4, K, 2)
+    step = _QUAD_SIGNS[:, :, 0] * u[None] + _QUAD_SIGNS[:, :, 1] * v[None]  # (4, K, 2)
     centre = p[None] + step / 2
     off = ~sampler.contains(centre.reshape(-1, 2)).reshape(4, -1)
-    centre[off] = (p[None] + step / 4)[off]
+    if off.any():
+        centre[off] = (p[None] + step / 4)[off]
     samples = sampler.mean(centre[:, None] + offsets[None], radius)  # (4 quads, S samples, K)
     # fmax / fmin skip NaN samples (off the image) without nanmax's warnings; all-NaN stays NaN
     spread = np.fmax.reduce(np.fmax.reduce(samples, 1) - np.fmin.reduce(samples, 1), 0)
-    pp, pm, mp, mm = np.sort(samples, axis=1)[:, n // 2]  # the median sample
-    return np.stack([pp - pm, pp - mp, mm - pm, mm - mp], 1), spread
+    quads = np.sort(samples, axis=1)[:, n // 2]  # the median sample of each quad, (4, K)
+    return (quads[QUAD_PAIRS[:, 0]] - quads[QUAD_PAIRS[:, 1]]).T, spread
+
+
+# the quads +u+v, +u-v, -u+v, -u-v (0..3): their signs of u and v, (4 quads, 1, 2, 1), and the edge-adjacent
+# pairs quad_differences returns, in its order: (own-parity quad, other-parity quad)
+_QUAD_SIGNS = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)[:, None, :, None]
+QUAD_PAIRS = np.array([[0, 1], [0, 2], [3, 1], [3, 2]])
+for _constant in (_QUAD_SIGNS, QUAD_PAIRS):
+    _constant.setflags(write=False)
 
 
 @lru_cache(maxsize=8)

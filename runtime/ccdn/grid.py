@@ -70,7 +70,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from .checker import MIN_CONTRAST, Sampler, quad_differences, x_like
+from .checker import MIN_CONTRAST, QUAD_PAIRS, Sampler, quad_differences, x_like
 from .refine import refine_saddle_points, window_for_spacing
 from .stats import median, nanmedian_rows
 
@@ -90,8 +90,8 @@ FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ri
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
-_PAIRS_WITHOUT = np.array([[2, 3], [1, 3], [0, 2], [0, 1]])  # quad_differences' pairs (columns) that
-# leave out quad +u+v, +u-v, -u+v, -u-v
+_PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
+# the pairs (quad_differences' columns) that leave each quad out
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
 _NEARBY = sorted(((i, j) for i in range(-3, 4) for j in range(-3, 4)), key=lambda q: (abs(q[0]) + abs(q[1]), q))
@@ -237,7 +237,7 @@ class _Grower:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
         image are not counted); strict (for corners the network did not propose): also the seed's
         test of even contrast and uniform quads, which points on a board's outline next to clutter
-        fail."""
+        fail; without it, a point that fails gets the module docstring's second chance."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         if strict:  # a corner the image alone proposes gets no second chance
