@@ -85,8 +85,8 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
 # pairs quad_differences returns, in its order: (own-parity quad, other-parity quad)
 _QUAD_SIGNS = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)[:, None, :, None]
 QUAD_PAIRS = np.array([[0, 1], [0, 2], [3, 1], [3, 2]])
-for _constant in (_QUAD_SIGNS, QUAD_PAIRS):
-    _constant.setflags(write=False)
+_QUAD_SIGNS.setflags(write=False)
+QUAD_PAIRS.setflags(write=False)
 
 
 @lru_cache(maxsize=8)

@@ -240,7 +240,7 @@ class _Grower:
         fail; without it, a point that fails gets the module docstring's second chance."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
-        if strict:  # a corner the image alone proposes gets no second chance
+        if strict:  # the strict test (completion's corners, prune's lone ones) gets no second chance
             diffs, spread = quad_differences(self.sampler, points, u, v)
             return self._alternate(diffs * sign[:, None], spread, strict)
         # the second chance (module docstring), sampled in the same call: one quad may be hidden,
@@ -248,10 +248,10 @@ class _Grower:
         k = len(points)
         diffs, spread = quad_differences(self.sampler, np.concatenate([points, points]),
                                          np.concatenate([u, NEAR_QUADS * u]), np.concatenate([v, NEAR_QUADS * v]))
-        diffs *= np.concatenate([sign, sign])[:, None]
+        diffs *= np.tile(sign, 2)[:, None]
         far, near = diffs[:k], diffs[k:]
         three_quads = (np.fmin.reduce(far[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
-        return self._alternate(far, spread[:k], strict) | (three_quads & self._alternate(near, spread[k:], True))
+        return self._alternate(far, spread[:k], False) | (three_quads & self._alternate(near, spread[k:], True))
 
     def _alternate(self, diffs: np.ndarray, spread: np.ndarray, strict: bool) -> np.ndarray:
         """(K,) whether quad pair differences diffs (K, 4), in the board's sign, alternate enough;
