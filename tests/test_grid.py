@@ -134,6 +134,25 @@ def test_completion_adds_nothing_beyond_the_board():
         assert len(board) == 35 and (board.corner_index < 35).all()
 
 
+@pytest.mark.parametrize("cut", [2, 4, 6])
+def test_completion_adds_nothing_on_a_board_outline_at_the_frame_edge(cut):
+    """The frame cuts a board `cut` px beyond its outer edge, over a grey background: a point on that
+    edge shows one dark/light quad pair on the frame, what a corner cut by the frame shows too; it
+    takes no corner there (at 4 px it took all five)."""
+    step, squares_x, squares_y = 24, 8, 6
+    image = np.full((squares_y * step + 48, 48 + squares_x * step), 70, np.uint8)
+    image[24 : 24 + squares_y * step, 24 : 24 + squares_x * step] = 200
+    for r in range(squares_y):
+        for c in range(squares_x):
+            if (r + c) % 2 == 0:
+                image[24 + r * step : 24 + (r + 1) * step, 24 + c * step : 24 + (c + 1) * step] = 40
+    image = np.ascontiguousarray(cv2.GaussianBlur(image, (5, 5), 1.0)[:, : 24 + squares_x * step + cut])
+    xy = np.array([(23.5 + c * step, 23.5 + r * step) for r in range(1, squares_y) for c in range(1, squares_x)],
+                  np.float32)
+    (board,) = find_boards(image, xy, np.ones(len(xy)), complete=True)
+    assert len(board) == 35 and (board.corner_index < 35).all()
+
+
 def test_points_on_the_board_outline_do_not_extend_the_board():
     """Detectors also fire where the outer squares meet the margin; those are not inner corners."""
     for scene in whole_boards(3, board_sizes=((7, 5),)):

@@ -29,7 +29,8 @@ tolerant of perspective and strong radial/fisheye distortion.
 Completion (complete=True): where no given corner lies near a predicted position, the image itself
 is asked: where the image test, made as strict as the seed's, passes at the prediction, a saddle
 point is fitted there (ccdn.refine, within the same tolerance) and taken if it passes the ring test
-and the strict image test. This recovers the corners the network scored too low (shadowed, blurred,
+and the strict image test, with at least two of its quad pairs on the image (one pair alone, at the
+frame's edge, is what a board's outline shows too). This recovers the corners the network scored too low (shadowed, blurred,
 or first found on a downscaled frame); such corners get indices >= len(xy), in order of addition.
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
@@ -92,6 +93,9 @@ SEED_UNEVEN = 1  # corners of a seed square whose quads need not be uniform: an 
 FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ring-at-once growth
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
+COMPLETION_MIN_PAIRS = 2  # quad pairs on the image a completed corner needs: one pair alone, at the frame's edge,
+# is an edge (a board's outline there took indices: held-out stress renders 3 false positives fewer, 1 corner
+# 1.5 px from the frame's edge fewer; the benchmark's renders 2 such corners fewer)
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
 _PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
 # the pairs (quad_differences' columns) that leave each quad out
@@ -236,16 +240,17 @@ class _Grower:
         return nanmedian_rows(np.concatenate([line, diagonal], 1))
 
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
-                 strict: bool = False) -> np.ndarray:
+                 strict: bool = False, min_pairs: int = 1) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
-        image are not counted); strict (for corners the network did not propose): also the seed's
-        test of even contrast and uniform quads, which points on a board's outline next to clutter
-        fail; without it, a point that fails gets the module docstring's second chance."""
+        image are not counted, but at least min_pairs of the 4 quad pairs must be on it); strict
+        (for corners the network did not propose): also the seed's test of even contrast and
+        uniform quads, which points on a board's outline next to clutter fail; without it, a
+        point that fails gets the module docstring's second chance."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         if strict:  # the strict test (completion's corners, prune's lone ones) gets no second chance
             diffs, spread = quad_differences(self.sampler, points, u, v)
-            return self._alternate(diffs * sign[:, None], spread, strict)
+            return self._alternate(diffs * sign[:, None], spread, strict) & (np.isfinite(diffs).sum(1) >= min_pairs)
         # the second chance (module docstring), sampled in the same call: one quad may be hidden,
         # the corner's surroundings may not
         k = len(points)
@@ -357,7 +362,7 @@ class _Grower:
               & (preds[:, 1] <= h - 1))
         # the strict image test at the predictions first: a saddle fit costs ~30x more, and around a
         # board most predictions fall on its margin, where no quads alternate evenly
-        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], strict=True)
+        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], True, COMPLETION_MIN_PAIRS)
         cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
         if len(cells) == 0:
             return False
@@ -368,7 +373,7 @@ class _Grower:
         points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
-        good[good] &= self._accepts(cells[good], points[good], u[good], v[good], strict=True)
+        good[good] &= self._accepts(cells[good], points[good], u[good], v[good], True, COMPLETION_MIN_PAIRS)
         taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
         if len(taken):
             good &= np.linalg.norm(points[:, None] - taken[None], axis=2).min(1) >= tol
