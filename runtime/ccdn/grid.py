@@ -5,9 +5,8 @@ corner (on a small ring around it the grey level alternates twice: the ring's se
 harmonic beats its first, as it does not at an edge or a T-junction), then at most 200 others (a
 cheap filter that keeps clutter from costing a seed attempt per point). A seed is a corner p with
 two neighbours p + u, p + v whose sum p + u + v is also a corner (one square of the lattice) and
-whose four corners pass the image test below, with uniform grey inside each sampled quad (at three
-of the four corners: an occluder's edge may cross the fourth's quads), sampled out to a quarter of
-its diagonals (a wrong lattice samples edges; a sheared one such as (u, v + 2u),
+whose four corners pass the image test below, with uniform grey inside each sampled quad, sampled
+out to a quarter of its diagonals (a wrong lattice samples edges; a sheared one such as (u, v + 2u),
 whose quad centres are square centres too, reaches into other squares); of the passing bases the
 shortest is taken. The board then grows, first ring-at-once while it looks flat: a homography
 fitted to the grid so far predicts every cell up to the grid's own extent beyond it, and the free
@@ -88,8 +87,6 @@ RELATIVE_CONTRAST = 0.2  # of the seed's median contrast
 SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's diagonals) from their centres:
 # a basis (u, v + 2u) passes the colour test like (u, v), but its quads reach into other squares
 SEED_AXES = 0.3  # ... and this far along each lattice step: a grid of thin lines passes the diagonal samples
-SEED_UNEVEN = 1  # corners of a seed square whose quads need not be uniform: an occluder's edge may cross one
-# (held-out stress renders: occluded 37 -> 24 missed corners, no other change, no false positive more)
 FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ring-at-once growth
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
@@ -601,8 +598,7 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
         diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
-        # the square's spread: that of its most uniform 4 - SEED_UNEVEN corners
-        spread = np.sort(np.concatenate([seed_spread[:, None], spread.reshape(-1, 3)], 1), 1)[:, 3 - SEED_UNEVEN]
+        spread = np.maximum(seed_spread, spread.reshape(-1, 3).max(1))
         g_sign[t] = np.sign(median(diffs, axis=1))
         g_contrast[t] = median(diffs * g_sign[t][:, None], axis=1)
         with np.errstate(invalid="ignore"):
