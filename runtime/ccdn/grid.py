@@ -91,8 +91,8 @@ FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ri
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
 COMPLETION_MIN_PAIRS = 2  # quad pairs on the image a completed corner needs: one pair alone, at the frame's edge,
-# is an edge (a board's outline there took indices: held-out stress renders 3 false positives fewer, 1 corner
-# 1.5 px from the frame's edge fewer; the benchmark's renders 2 such corners fewer)
+# is an edge (a board's outline there took indices: held-out stress renders 3 false positives fewer, 2 corners
+# 1.5-2 px from the frame's edge fewer; the benchmark's renders 2 such corners fewer)
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
 _PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
 # the pairs (quad_differences' columns) that leave each quad out
