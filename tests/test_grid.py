@@ -414,3 +414,35 @@ def test_holes_are_completed_once_their_neighbours_are_in():
         scene = calm_scene(seed, p_motion=1.0)
         distances = nearest_distances(detector.detect(scene.image).xy, scene.corners)
         assert (distances < 1.5).all(), (seed, int((distances >= 1.5).sum()))
+
+
+@pytest.mark.parametrize("dotted", ["corner squares", "every square"])
+def test_a_board_with_marks_in_its_corner_squares_still_seeds(dotted):
+    """Boards often carry marks (dots, a logo) in some squares. A dot in each corner square of a
+    3 x 3-corner board breaks the uniform-quad test at one corner of every possible seed square,
+    which may have one such corner with uneven_seeds=1 (the detector's full-frame pass): the board is
+    found. Dots in every square break it at all four
+    corners: no seed, no board."""
+    rows, cols = np.meshgrid(np.arange(4), np.arange(4), indexing="ij")
+    squares = np.stack([rows.ravel(), cols.ravel()], 1)  # (row, col) of the 4 x 4 squares
+    if dotted == "corner squares":
+        squares = squares[np.isin(squares, (0, 3)).all(1)]
+    for scene in whole_boards(3, board_sizes=((3, 3),), square_px=(30.0, 40.0), max_tilt_deg=15.0):
+        # square (r, c) spans inner corners (r - 1, c - 1) .. (r, c): its centre from an affine fit to them
+        fit, *_ = np.linalg.lstsq(np.c_[scene.grid, np.ones(len(scene.grid))], scene.corners, rcond=None)
+        centres = np.c_[squares - 0.5, np.ones(len(squares))] @ fit
+        if ((centres > 20) & (centres < np.array(scene.image.shape[::-1]) - 20)).all():  # whole board in frame
+            break
+    else:
+        pytest.fail("no render with the whole board in frame")
+    image = scene.image.copy()
+    for centre in centres:
+        light = cv2.getRectSubPix(image, (1, 1), tuple(map(float, centre)))[0, 0] > 127
+        cv2.circle(image, tuple(int(round(c)) for c in centre), 4, 0 if light else 255, -1)
+    boards = find_boards(image, scene.corners, np.ones(len(scene.corners)), uneven_seeds=1)
+    if dotted == "corner squares":
+        (board,) = boards
+        assert len(board) == 9 and index_map(board, scene.grid[board.corner_index]) is not None
+        assert find_boards(image, scene.corners, np.ones(len(scene.corners))) == ()  # strict seeds only
+    else:
+        assert boards == ()

@@ -51,6 +51,8 @@ COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the nex
 # stress renders: at 7 their figures stay those of the full-resolution pass)
 COARSE_MAX_SHIFT = 3.0  # shrunk px a corner may lie from its peak on a shrunk frame: `fast`'s peaks there can be
 # ~2 px off (its 4x4-pixel output cells; 2.0 lost such a corner: stress partial 0.22 -> 0.11 % missed, the rest as it was)
+FULL_FRAME_UNEVEN_SEEDS = 1  # on the full frame a seed square may have a corner whose quads an occluder's edge
+# crosses (ccdn.grid); not on shrunk passes, where finding a hard board would stop the finer passes
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
 PAPER_THRESHOLD = (0.5, 0.3)  # the paper's half of the maximum (and a floor), for the other filters
 
@@ -188,7 +190,8 @@ class Detector:
         found: tuple[Board, ...] = ()
         if self.filter == "grid" or boards or board_size is not None:
             complete = self.filter == "grid"
-            found = find_boards(gray, refined, values, board_size, complete=complete)
+            found = find_boards(gray, refined, values, board_size, complete=complete,
+                                uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0)
             if complete:
                 refined, values = _with_completed(refined, values, found, score, scale)
             if complete or board_size is not None:
