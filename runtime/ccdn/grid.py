@@ -13,10 +13,10 @@ left after that one lets one of a square's four corners have non-uniform quads (
 a mark printed in a square crossing them; held-out stress renders: a small occluded board found, 13
 corners; tried before the strict round, or on shrunk frames, it changed which boards those find).
 The board then grows, first ring-at-once while it looks flat: a homography fitted to the grid so
-far predicts every cell up to the grid's own extent beyond it, and the free
-corners within 0.3 of the shorter lattice step of a prediction that pass the image test join where
-they connect to the grid along rows and columns (a 9 x 9 board fills in ~3 such rounds; a fit off
-by more than 5 % of a step anywhere, as under lens distortion, stops this). Then position by
+far predicts every cell up to the grid's own extent beyond it, and the free corners within 0.3 of
+the shorter lattice step of a prediction that pass the image test join where they connect to the
+grid along rows and columns (a 9 x 9 board fills in ~3 such rounds; a fit off by more than 5 % of a
+step anywhere, as under lens distortion, stops this). Then position by
 position: each empty neighbour of the grid is predicted from the grid (along a row or column from
 the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms with
 diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of the
@@ -33,8 +33,9 @@ Completion (complete=True): where no given corner lies near a predicted position
 is asked: where the image test, made as strict as the seed's, passes at the prediction, a saddle
 point is fitted there (ccdn.refine, within the same tolerance) and taken if it passes the ring test
 and the strict image test, with at least two of its quad pairs on the image (one pair alone, at the
-frame's edge, is what a board's outline shows too). This recovers the corners the network scored too low (shadowed, blurred,
-or first found on a downscaled frame); such corners get indices >= len(xy), in order of addition.
+frame's edge, is what a board's outline shows too). This recovers the corners the network scored
+too low (shadowed, blurred, or first found on a downscaled frame); such corners get indices >=
+len(xy), in order of addition.
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
 level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
@@ -542,6 +543,7 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     bases the shortest is taken (the colour test cannot tell (u, v) from (u, v + 2u)). Returns
     found (S,), corners (S, 4) ordered (0,0), (0,1), (1,0), (1,1) with u x v > 0 (+col, +row like
     image +x, +y), the board's sign (S,) (+: quads of even row + col are light) and contrast (S,).
+    uneven: how many of a square's corners may have non-uniform quads (0 or 1; find_boards).
     """
     if len(seeds) > SEED_CHUNK:  # bounds the (seeds x pairs x neighbours) arrays
         parts = [_seed_squares(xy, sampler, seeds[k : k + SEED_CHUNK], neighbours[k : k + SEED_CHUNK], free, uneven)
