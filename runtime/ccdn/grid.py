@@ -244,10 +244,10 @@ class _Grower:
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
                  strict: bool = False, min_pairs: int = 1) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
-        image are not counted, but at least min_pairs of the 4 quad pairs must be on it); strict
-        (for corners the network did not propose): also the seed's test of even contrast and
-        uniform quads, which points on a board's outline next to clutter fail; without it, a
-        point that fails gets the module docstring's second chance."""
+        image are not counted); strict (for corners the network did not propose): also the seed's
+        test of even contrast and uniform quads, which points on a board's outline next to clutter
+        fail, with at least min_pairs of the 4 quad pairs on the image; without it, a point that
+        fails gets the module docstring's second chance."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         if strict:  # the strict test (completion's corners, prune's lone ones) gets no second chance
@@ -619,6 +619,23 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     return found, corners, sign, contrast
 
 
+def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.ndarray | None, added: list,
+                square: list) -> _Grower | None:
+    """The board grown from a verified seed square (_seed_squares' found, corners, sign, contrast) over
+    the free corners (gray given: with completion; `added`: corners earlier boards completed), pruned and
+    trimmed; None when it is smaller than MIN_CORNERS or MIN_EXTENT."""
+    occupied = np.concatenate([xy[~free], np.reshape(added, (-1, 2))])
+    grower = _Grower(xy, free, sampler, gray, len(xy) + len(added), occupied)
+    grower.seed(square[1], float(square[2]), float(square[3]))
+    grower.grow()
+    grower.prune()
+    grower.trim_outline()
+    grid, idx = grower.cells()
+    if len(idx) < MIN_CORNERS or (grid.max(0) - grid.min(0) + 1).min() < MIN_EXTENT:
+        return None
+    return grower
+
+
 def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,
             allow_partial: bool) -> np.ndarray | None:
     """(row, col) in the documented orientation, or None if the board does not fit board_size."""
@@ -726,20 +743,10 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in _seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
                                                             uneven)]
-            if not square[0]:
+            grower = _grow_board(xy, free, sampler, gray if complete else None, added, square) if square[0] else None
+            if grower is None:
                 continue
-            occupied = np.concatenate([xy[~free], np.reshape(added, (-1, 2))])
-            grower = _Grower(xy, free, sampler, gray if complete else None, n + len(added), occupied)
-            grower.seed(square[1], float(square[2]), float(square[3]))
-            grower.grow()
-            grower.prune()
-            grower.trim_outline()
             grid, idx = grower.cells()
-            if len(idx) < MIN_CORNERS:
-                continue
-            extent = grid.max(0) - grid.min(0) + 1
-            if extent.min() < MIN_EXTENT:
-                continue
             free[idx[idx < n]] = False  # a board of another size still owns its corners
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
             added.extend(grower.added)
