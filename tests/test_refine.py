@@ -183,19 +183,27 @@ def test_fits_at_sub_pixel_centres_equal_fits_of_the_bilinear_samples(clean_scen
         assert np.allclose(offset[k], expected, atol=1e-6), k
 
 
-def test_patches_gathered_in_chunks_refine_the_same(clean_scene, monkeypatch):
-    """The smoothing gathers patches a chunk at a time (bounded index memory): chunks of one patch
-    must give the same corners as one chunk for all. Two copies of the board far apart make the
-    smoothing work on patches rather than on the region the corners span."""
-    import ccdn.refine
+def test_patches_hold_the_frame_pixels_whole_or_cut_by_its_edge(clean_scene):
+    """Corners spread over a big frame are smoothed in one patch per corner: a patch inside the frame
+    is a copy of its window, a patch the frame's edge cuts holds the frame's pixels and zeros beyond
+    (unsmoothed here, sigma 0, to compare pixels). Two copies of the board far apart make the
+    smoothing work on patches rather than on the region the corners span; corners at the frame's
+    edge cut theirs."""
+    from ccdn.refine import _smoothed_around
 
     h, w = clean_scene.image.shape
     frame = np.zeros((3 * h, 3 * w), np.uint8)
     frame[:h, :w] = frame[2 * h :, 2 * w :] = clean_scene.image
-    start = np.rint(np.concatenate([clean_scene.corners, clean_scene.corners + [2 * w, 2 * h]])).astype(np.int32)
-    assert ccdn.refine._smoothed_around(frame, start, 1.2, 12).image.shape[0] < 100  # patches, side by side
-    whole, ok_whole = refine(frame, start, "saddle")
-    monkeypatch.setattr(ccdn.refine, "GATHER_CHUNK", 1)
-    chunked, ok_chunked = refine(frame, start, "saddle")
-    assert ok_whole.sum() > 0.95 * len(start)
-    assert np.array_equal(ok_whole, ok_chunked) and np.array_equal(whole, chunked)
+    frame[-1, -1] = frame[0, 0] = 255  # pixels a cut patch must keep where the frame ends
+    start = np.concatenate([clean_scene.corners, clean_scene.corners + [2 * w, 2 * h], [[0.0, 0.0], [3 * w - 1, 3 * h - 1]]])
+    smoothed = _smoothed_around(frame, start, 0.0, 12)
+    side = smoothed.high[0, 0] - smoothed.low[0, 0] + 1
+    assert smoothed.image.shape == (side, len(start) * side)  # patches, side by side
+    padded = np.pad(frame, side)
+    cut = 0
+    for k in range(len(start)):
+        (x, y), (left, _) = smoothed.shift[k] + smoothed.low[k], smoothed.low[k]
+        patch = smoothed.image[:, left : left + side]
+        assert np.array_equal(patch, padded[y + side : y + 2 * side, x + side : x + 2 * side]), k
+        cut += not (0 <= x and 0 <= y and x + side <= 3 * w and y + side <= 3 * h)
+    assert cut >= 2

@@ -23,10 +23,10 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 METHODS = ("saddle", "cornersubpix", "none")
 SUBPIXEL_ITERATIONS = 2
-GATHER_CHUNK = 1 << 18  # pixels of patches gathered at once (their int64 index: 2 MB)
 
 
 def window_for_spacing(spacing: float) -> int:
@@ -292,16 +292,15 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     cols, rows = corner[:, 0:1] + offsets, corner[:, 1:2] + offsets  # (N, side) each
     col_in, row_in = (cols >= 0) & (cols < w), (rows >= 0) & (rows < h)
     cut = ~(col_in.all(1) & row_in.all(1))
-    if cut.any():  # patches the frame's edge cuts: their pixels outside are read clamped, then zeroed
-        rows, cols = np.minimum(np.maximum(rows, 0), h - 1), np.minimum(np.maximum(cols, 0), w - 1)
-    # side by side in one wide image, (row, patch, column): a wide image blurs faster than a tall one (~2x);
-    # gathered a chunk of patches at a time, which bounds the int64 index array at GATHER_CHUNK elements
+    # side by side in one wide image, (row, patch, column): a wide image blurs faster than a tall one (~2x)
     patches = np.empty((side, n, side), np.float32)
-    chunk = max(1, GATHER_CHUNK // (side * side))
-    for start in range(0, n, chunk):
-        part = slice(start, start + chunk)
-        patches[:, part] = np.ravel(gray).take(rows[part].T[:, :, None] * w + cols[None, part])
-    if cut.any():
+    if not cut.all():  # a whole patch is a window of the frame: copied from a strided view, no index array
+        # (measured: 0.09 against 2.3 ms for 90 patches of 50 x 50 px; a take over int64 indices before)
+        whole = ~cut
+        patches[:, whole] = sliding_window_view(gray, (side, side))[corner[whole, 1], corner[whole, 0]].transpose(1, 0, 2)
+    if cut.any():  # patches the frame's edge cuts: read clamped (broadcast indices: no index array), then zeroed
+        rows_in, cols_in = np.minimum(np.maximum(rows[cut], 0), h - 1), np.minimum(np.maximum(cols[cut], 0), w - 1)
+        patches[:, cut] = gray[rows_in.T[:, :, None], cols_in[None]]
         patches[:, cut] *= row_in[cut].T[:, :, None] & col_in[cut][None]
     wide = patches.reshape(side, n * side)  # one blur for all: a patch's margin absorbs its neighbours'
     if sigma > 0:
