@@ -219,7 +219,7 @@ class _Grower:
         """The lattice steps along +col (u) and +row (v) nearest to each canvas cell (K, 2): from the
         nearest filled pair (_NEARBY order), or across a hole (halved); NaN without one."""
         gathered = self._gather(cells[:, 0:1] + _AXES_R, cells[:, 1:2] + _AXES_C)
-        a, *beyond = np.split(gathered, len(_AXES_SHIFTS), 1)  # each (K, 49, 2)
+        a, *beyond = np.moveaxis(gathered.reshape(len(cells), len(_AXES_SHIFTS), len(_NEARBY), 2), 1, 0)  # each (K, 49, 2)
         steps = []
         for one, two in (beyond[0:2], beyond[2:4]):  # along +col, then +row
             diff = np.concatenate([one - a, (two - a) / 2], 1)  # (K, 98, 2): all one-step pairs first, nearest first
@@ -346,7 +346,9 @@ class _Grower:
             mask = (self.idx >= 0).astype(np.uint8)
             mask[cells[ok, 0], cells[ok, 1]] = 1
             _, labels = cv2.connectedComponents(mask, connectivity=4)
-            joined = np.isin(labels[cells[ok, 0], cells[ok, 1]], labels[filled[:, 0], filled[:, 1]])
+            grid_label = np.zeros(labels.max() + 1, bool)  # a lookup, not np.isin's sort
+            grid_label[labels[filled[:, 0], filled[:, 1]]] = True
+            joined = grid_label[labels[cells[ok, 0], cells[ok, 1]]]
             if not joined.any():
                 return
             self._place(cells[ok[joined]] - self.origin, corners[joined])
@@ -498,7 +500,7 @@ def _project_with_steps(homography: np.ndarray, grid: np.ndarray) -> tuple[np.nd
     """Image positions (K, 2) of grid points (col, row) (K, 2) under a homography, and the steps
     to their +col and +row neighbours (u, v)."""
     moved = cv2.perspectiveTransform(np.concatenate([grid, grid + [1, 0], grid + [0, 1]])[None], homography)[0]
-    points, right, down = np.split(moved, 3)
+    points, right, down = moved.reshape(3, -1, 2)
     return points, right - points, down - points
 
 
@@ -590,7 +592,12 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     g_sign, g_contrast = np.zeros(len(si)), np.zeros(len(si))
     first_round = rank < 3  # the image test is the costly part: the shortest squares first ...
     for second in (False, True):  # ... the rest only for the seeds whose shortest all failed
-        t = np.nonzero(~first_round & ~np.isin(si, si[passed]) if second else first_round)[0]
+        if second:  # the squares of seeds none of whose squares passed yet (a lookup, not np.isin's sort)
+            seed_passed = np.zeros(n_seeds, bool)
+            seed_passed[si[passed]] = True
+            t = np.nonzero(~first_round & ~seed_passed[si])[0]
+        else:
+            t = np.nonzero(first_round)[0]
         if len(t) == 0:  # usually the second round: every seed passed with one of its shortest
             continue
         # the seed corner alone first: passing needs its 4 quad pairs to differ one way by MIN_CONTRAST
