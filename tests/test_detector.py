@@ -81,17 +81,21 @@ def test_paper_model_is_bundled():
     assert "paper" in ccdn.available_models()
 
 
-def test_default_model_is_int8_only_on_cpus_with_8bit_dot_products(monkeypatch):
+def test_default_models_are_int8_only_on_cpus_with_8bit_dot_products(monkeypatch):
     from ccdn import models
 
-    for has_vnni, name in ((True, "paper-int8"), (False, "paper")):
+    for has_vnni, names in ((True, ("fast-int8", "paper-int8")), (False, ("fast", "paper"))):
         models.default_model.cache_clear()
+        models.default_coarse_model.cache_clear()
         monkeypatch.setattr(models, "_has_int8_dot_product", lambda: has_vnni)
-        assert ccdn.Detector(threads=1).model.name == name
+        detector = ccdn.Detector(threads=1)
+        assert (detector.coarse_model.name, detector.model.name) == names
+        assert detector.models == "+".join(names)
     models.default_model.cache_clear()
+    models.default_coarse_model.cache_clear()
 
 
-@pytest.mark.parametrize("model", ["fast", "paper-int8", "paper"])
+@pytest.mark.parametrize("model", ["fast", "fast-int8", "paper-int8", "paper"])
 @pytest.mark.parametrize("name", ["board", "fisheye", "two-boards"])
 def test_other_bundled_models_find_every_corner_of_the_examples_and_nothing_else(examples, name, model):
     ex = examples[name]
@@ -144,7 +148,7 @@ def test_a_vga_frame_with_big_squares_is_detected_on_the_halved_frame(examples):
     shapes = _network_frames(detector)
     coarse = detector.detect(examples["board"]["path"])  # squares ~24 px: 12 px halved
     full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(examples["board"]["path"])
-    assert shapes == [(240, 320, "fast")]  # the full-size pass was skipped
+    assert shapes == [(240, 320, ccdn.models.default_coarse_model())]  # the full-size pass was skipped
     assert len(coarse) == len(full) == 54
     assert max(nearest_distances(coarse.xy, full.xy)) < 0.01  # refined on the same full-size pixels
 
@@ -159,7 +163,7 @@ def test_a_2000x1500_frame_with_75_px_squares_is_detected_on_the_8x_frame_alone(
     shapes = _network_frames(detector)
     coarse = detector.detect(big)
     full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(big)
-    assert shapes == [(187, 250, "fast")]  # squares of ~9 px there: no finer pass
+    assert shapes == [(187, 250, ccdn.models.default_coarse_model())]  # squares of ~9 px there: no finer pass
     errors = [nearest_distances(r.xy, truth) for r in (coarse, full)]  # an upscaled, blurred board: ~0.2 px
     assert len(coarse) == len(full) == 54
     assert max(errors[0]) < 0.5 and np.mean(errors[0]) < np.mean(errors[1]) + 0.02
@@ -179,7 +183,7 @@ def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(exa
     assert np.array_equal(coarse.xy, full.xy)
     # the default cascade: `fast` on the halved frame, the paper net on the full one's part where
     # `fast` responded (ccdn.regions): the board, 256x192 px, and a margin, not the whole frame
-    assert shapes[0] == (240, 320, "fast") and {name for *_, name in shapes[1:]} == {ccdn.models.default_model()}
+    assert shapes[0] == (240, 320, ccdn.models.default_coarse_model()) and {name for *_, name in shapes[1:]} == {ccdn.models.default_model()}
     assert sum(h * w for h, w, _ in shapes[1:]) < 0.6 * 480 * 640
     assert coarse.model.startswith(ccdn.models.default_model() + " ")
 
@@ -193,7 +197,7 @@ def test_a_frame_without_a_board_runs_the_full_resolution_pass_only_where_the_ha
     detector = ccdn.Detector(threads=2)
     shapes = _network_frames(detector)
     assert len(detector.detect(frame)) == 0
-    assert shapes[0] == (240, 320, "fast")
+    assert shapes[0] == (240, 320, ccdn.models.default_coarse_model())
     assert 0 < sum(h * w for h, w, _ in shapes[1:]) <= (120 + 2 * 12 + 16) * (160 + 2 * 12 + 16)  # patch, halo, margin
 
 

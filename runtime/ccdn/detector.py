@@ -14,9 +14,9 @@ with nothing there costs no full-resolution network). Small squares and frames w
 therefore pay for the shrunk passes, and a board too small to be seen shrunk is lost when another
 board in the same frame has squares big enough (measured in benchmarks/; README).
 
-The default detector is a cascade: the shrunk passes run the cheap `fast` model (COARSE_MODEL),
-whose one weakness, corners closer than ~5 px (its 4x4-pixel output cells), cannot matter there,
-since a shrunk pass is kept only when its squares are >= COARSE_MIN_SQUARE px; the full-frame pass,
+The default detector is a cascade: the shrunk passes run the cheap `fast` model (`fast-int8` on
+CPUs with VNNI: ccdn.models.default_coarse_model), whose one weakness, corners closer than ~5 px (its
+4x4-pixel output cells), cannot matter there, since a shrunk pass is kept only when its squares are >= COARSE_MIN_SQUARE px; the full-frame pass,
 which small squares reach, runs the paper net. A model named explicitly runs every pass itself.
 """
 
@@ -32,6 +32,7 @@ import numpy as np
 from .edges import NOISY_SIGMA, image_noise, lattice_steps, refine_on_edges
 from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
+from .models import default_coarse_model
 from .peaks import find_peaks, kmeans_outliers, suppress
 from .regions import look_boxes
 from .refine import refine, refine_from_shrunk, window_for_spacing
@@ -46,7 +47,6 @@ COARSE_MIN_SIDE = 160  # px: the shorter side of a frame shrunk for a coarse pas
 # pass, so the median went up (real-dev frames 20.9 -> 22.7 ms, stress renders 27.7 -> 29.2 ms), and the fast
 # model lost whole second boards there (stress two-boards 1.7 -> 8.0 % missed); 240 left 2000x1500 frames at 4x
 # (network 27 vs 7 ms); 90 adds a 16x pass at 2000x1500 that never finds the board there
-COARSE_MODEL = "fast"  # the default detector's shrunk passes (module docstring)
 COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass (chosen on the
 # stress renders: at 7 their figures stay those of the full-resolution pass)
 COARSE_MAX_SHIFT = 3.0  # shrunk px a corner may lie from its peak on a shrunk frame: `fast`'s peaks there can be
@@ -62,8 +62,9 @@ class Detector:
 
     model: a bundled model's name (default: ccdn.models.default_model(): "paper-int8" on CPUs with
     VNNI, "paper" elsewhere) or a path to an .onnx file: the model of the full-frame pass.
-    coarse_model: the model of the shrunk passes of coarse-to-fine: by default COARSE_MODEL ("fast")
-    when `model` is not named (the default cascade, module docstring), else `model` itself.
+    coarse_model: the model of the shrunk passes of coarse-to-fine: by default
+    ccdn.models.default_coarse_model() ("fast-int8" on CPUs with VNNI, "fast" elsewhere) when `model`
+    is not named (the default cascade, module docstring), else `model` itself.
     threads: intra-op threads (default: available CPUs, capped at 4). spinning: False keeps idle
     threads from busy-waiting, for apps that share the CPU.
     relative, floor: keep score peaks >= max(relative * max score, floor). Default: 0.4 and 0.25 with
@@ -95,7 +96,7 @@ class Detector:
         self.refinement = refinement
         self.coarse_to_fine = coarse_to_fine and filter == "grid" and refinement != "none"
         if coarse_model is None and model is None:
-            coarse_model = COARSE_MODEL
+            coarse_model = default_coarse_model()
         self._coarse_session = (ScoreSession(coarse_model, threads, spinning) if self.coarse_to_fine and coarse_model
                                 is not None else self._session)
         self.coarse_model = self._coarse_session.info

@@ -8,7 +8,9 @@ from pathlib import Path
 
 INT8_MODEL = "paper-int8"  # the default where the CPU has 8-bit dot products (default_model)
 FLOAT_MODEL = "paper"  # the default elsewhere: the same network and figures in float32
-DEFAULT_HELP = "default: fast on shrunk frames, then paper, or paper-int8 on CPUs with VNNI"  # for --model help texts
+COARSE_INT8_MODEL = "fast-int8"  # the default cascade's shrunk passes there (default_coarse_model)
+COARSE_FLOAT_MODEL = "fast"  # ... and elsewhere
+DEFAULT_HELP = ("default: fast on shrunk frames, then paper (their int8 variants on CPUs with VNNI)")  # for --model help texts
 _INT8_DOT_FEATURES = ("AVX512VNNI", "AVX512_CLX", "AVX512_ICL", "AVX512_SPR")  # numpy's names for x86 VNNI
 _INT8_DOT_FLAGS = ("avx512_vnni", "avx_vnni", "amx_int8")  # /proc/cpuinfo's, incl. AVX-VNNI, which numpy does not name
 
@@ -41,6 +43,15 @@ def default_model() -> str:
     Intel CPUs with AVX2 but no VNNI, and ARM, are unmeasured and get float32, the safe choice. Both
     give the same detections within the quantisation's noise (models/paper-int8.md)."""
     return INT8_MODEL if _has_int8_dot_product() else FLOAT_MODEL
+
+
+@lru_cache(maxsize=1)
+def default_coarse_model() -> str:
+    """The bundled model of the default cascade's shrunk passes (ccdn.detector): COARSE_INT8_MODEL
+    on x86 CPUs with VNNI (network 1.8 -> 1.1 ms on a halved 640x480 frame, 1.2 -> 0.7 ms on a
+    2000x1500 frame shrunk 8x: AMD EPYC Zen 4, 2 threads; models/fast-int8.md), COARSE_FLOAT_MODEL
+    elsewhere, for default_model's reason."""
+    return COARSE_INT8_MODEL if _has_int8_dot_product() else COARSE_FLOAT_MODEL
 
 
 def _has_int8_dot_product() -> bool:
