@@ -5,8 +5,8 @@ and resized to each size, decoded once up front: the timed call goes from a uint
 corners. Each configuration gets a warm-up pass, then `--repeat` passes over all frames; we report
 the median and the 10th/90th percentiles per stage, and ("best") the median over frames of each
 frame's fastest pass, which a shared machine's passing load disturbs far less. OpenCV's
-findChessboardCornersSB, given the true board size, runs on the same frames for comparison. Cold start (import + session + first detect)
-is timed in fresh processes (median of 5, bytecode cached); peak RSS is the process's high-water mark after each size.
+findChessboardCornersSB, given the true board size, runs on the same frames for comparison. Cold
+start (import + session + first detect) is timed in fresh processes (median of 5, bytecode cached); peak RSS is the process's high-water mark after each size.
 
     python benchmarks/latency.py [--models default paper fast] [--repeat 3] [--json out/latency.json]
 """
@@ -147,7 +147,8 @@ def main(argv: list[str] | None = None) -> None:
 
 def format_table(report: dict) -> str:
     """Per-stage medians per run, then each model's speed-up over findChessboardCornersSB."""
-    lines = [f"{'size':<11}{'thr':>4}  {'model':<30}{'total ms':>9}{'p10-p90':>14}{'best ms':>9}" + "".join(f"{k:>9}" for k in STAGES)]
+    lines = [f"{'size':<11}{'thr':>4}  {'model':<30}{'total ms':>9}{'p10-p90':>14}{'best ms':>9}"
+             + "".join(f"{k:>9}" for k in STAGES)]
     opencv = {r["size"]: r["stages"]["total"]["median_ms"] for r in report["runs"]
               if r["model"].startswith("opencv") and r["stages"]}
     ratios = []

@@ -85,14 +85,10 @@ def test_default_models_are_int8_only_on_cpus_with_8bit_dot_products(monkeypatch
     from ccdn import models
 
     for has_vnni, names in ((True, ("fast-int8", "paper-int8")), (False, ("fast", "paper"))):
-        models.default_model.cache_clear()
-        models.default_coarse_model.cache_clear()
         monkeypatch.setattr(models, "_has_int8_dot_product", lambda: has_vnni)
         detector = ccdn.Detector(threads=1)
         assert (detector.coarse_model.name, detector.model.name) == names
         assert detector.models == "+".join(names)
-    models.default_model.cache_clear()
-    models.default_coarse_model.cache_clear()
 
 
 @pytest.mark.parametrize("model", ["fast", "fast-int8", "paper-int8", "paper"])
@@ -183,7 +179,8 @@ def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(exa
     assert np.array_equal(coarse.xy, full.xy)
     # the default cascade: `fast` on the halved frame, the paper net on the full one's part where
     # `fast` responded (ccdn.regions): the board, 256x192 px, and a margin, not the whole frame
-    assert shapes[0] == (240, 320, ccdn.models.default_coarse_model()) and {name for *_, name in shapes[1:]} == {ccdn.models.default_model()}
+    assert shapes[0] == (240, 320, ccdn.models.default_coarse_model())
+    assert {name for *_, name in shapes[1:]} == {ccdn.models.default_model()}
     assert sum(h * w for h, w, _ in shapes[1:]) < 0.6 * 480 * 640
     assert coarse.model.startswith(ccdn.models.default_model() + " ")
 

@@ -195,7 +195,8 @@ def test_patches_hold_the_frame_pixels_whole_or_cut_by_its_edge(clean_scene):
     frame = np.zeros((3 * h, 3 * w), np.uint8)
     frame[:h, :w] = frame[2 * h :, 2 * w :] = clean_scene.image
     frame[-1, -1] = frame[0, 0] = 255  # pixels a cut patch must keep where the frame ends
-    start = np.concatenate([clean_scene.corners, clean_scene.corners + [2 * w, 2 * h], [[0.0, 0.0], [3 * w - 1, 3 * h - 1]]])
+    frame_corners = [[0.0, 0.0], [3 * w - 1, 3 * h - 1]]
+    start = np.concatenate([clean_scene.corners, clean_scene.corners + [2 * w, 2 * h], frame_corners])
     smoothed = _smoothed_around(frame, start, 0.0, 12)
     side = smoothed.high[0, 0] - smoothed.low[0, 0] + 1
     assert smoothed.image.shape == (side, len(start) * side)  # patches, side by side

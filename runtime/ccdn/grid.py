@@ -219,7 +219,8 @@ class _Grower:
         """The lattice steps along +col (u) and +row (v) nearest to each canvas cell (K, 2): from the
         nearest filled pair (_NEARBY order), or across a hole (halved); NaN without one."""
         gathered = self._gather(cells[:, 0:1] + _AXES_R, cells[:, 1:2] + _AXES_C)
-        a, *beyond = np.moveaxis(gathered.reshape(len(cells), len(_AXES_SHIFTS), len(_NEARBY), 2), 1, 0)  # each (K, 49, 2)
+        by_shift = gathered.reshape(len(cells), len(_AXES_SHIFTS), len(_NEARBY), 2)
+        a, *beyond = np.moveaxis(by_shift, 1, 0)  # each (K, 49, 2)
         steps = []
         for one, two in (beyond[0:2], beyond[2:4]):  # along +col, then +row
             diff = np.concatenate([one - a, (two - a) / 2], 1)  # (K, 98, 2): all one-step pairs first, nearest first

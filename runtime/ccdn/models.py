@@ -10,7 +10,7 @@ INT8_MODEL = "paper-int8"  # the default where the CPU has 8-bit dot products (d
 FLOAT_MODEL = "paper"  # the default elsewhere: the same network and figures in float32
 COARSE_INT8_MODEL = "fast-int8"  # the default cascade's shrunk passes there (default_coarse_model)
 COARSE_FLOAT_MODEL = "fast"  # ... and elsewhere
-DEFAULT_HELP = ("default: fast on shrunk frames, then paper (their int8 variants on CPUs with VNNI)")  # for --model help texts
+DEFAULT_HELP = "default: fast on shrunk frames, then paper (their int8 variants on CPUs with VNNI)"  # for --model help texts
 _INT8_DOT_FEATURES = ("AVX512VNNI", "AVX512_CLX", "AVX512_ICL", "AVX512_SPR")  # numpy's names for x86 VNNI
 _INT8_DOT_FLAGS = ("avx512_vnni", "avx_vnni", "amx_int8")  # /proc/cpuinfo's, incl. AVX-VNNI, which numpy does not name
 
@@ -34,7 +34,6 @@ def available_models() -> list[str]:
     return sorted(p.stem for p in models_dir().glob("*.onnx"))
 
 
-@lru_cache(maxsize=1)
 def default_model() -> str:
     """The bundled model used when none is named: INT8_MODEL on x86 CPUs with VNNI (8-bit dot
     products), where onnxruntime's integer kernels run the paper net in about half its float32
@@ -45,7 +44,6 @@ def default_model() -> str:
     return INT8_MODEL if _has_int8_dot_product() else FLOAT_MODEL
 
 
-@lru_cache(maxsize=1)
 def default_coarse_model() -> str:
     """The bundled model of the default cascade's shrunk passes (ccdn.detector): COARSE_INT8_MODEL
     on x86 CPUs with VNNI (network 1.8 -> 1.1 ms on a halved 640x480 frame, 1.2 -> 0.7 ms on a
@@ -54,8 +52,10 @@ def default_coarse_model() -> str:
     return COARSE_INT8_MODEL if _has_int8_dot_product() else COARSE_FLOAT_MODEL
 
 
+@lru_cache(maxsize=1)
 def _has_int8_dot_product() -> bool:
-    """Whether the CPU has x86 VNNI: numpy's runtime CPU-feature table, or /proc/cpuinfo on Linux."""
+    """Whether the CPU has x86 VNNI: numpy's runtime CPU-feature table, or /proc/cpuinfo on Linux
+    (cached: both default models ask)."""
     try:
         from numpy._core._multiarray_umath import __cpu_features__ as features  # numpy >= 2
     except ImportError:  # numpy 1.x

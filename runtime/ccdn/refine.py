@@ -297,7 +297,8 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     if not cut.all():  # a whole patch is a window of the frame: copied from a strided view, no index array
         # (measured: 0.09 against 2.3 ms for 90 patches of 50 x 50 px; a take over int64 indices before)
         whole = ~cut
-        patches[:, whole] = sliding_window_view(gray, (side, side))[corner[whole, 1], corner[whole, 0]].transpose(1, 0, 2)
+        windows = sliding_window_view(gray, (side, side))[corner[whole, 1], corner[whole, 0]]  # (K, side, side)
+        patches[:, whole] = windows.transpose(1, 0, 2)
     if cut.any():  # patches the frame's edge cuts: read clamped (broadcast indices: no index array), then zeroed
         rows_in, cols_in = np.minimum(np.maximum(rows[cut], 0), h - 1), np.minimum(np.maximum(cols[cut], 0), w - 1)
         patches[:, cut] = gray[rows_in.T[:, :, None], cols_in[None]]
