@@ -165,6 +165,21 @@ def test_a_2000x1500_frame_with_75_px_squares_is_detected_on_the_8x_frame_alone(
     assert max(errors[0]) < 0.5 and np.mean(errors[0]) < np.mean(errors[1]) + 0.02
 
 
+def test_shrunk_frames_are_halvings_that_map_onto_the_frame_like_a_direct_area_mean(examples):
+    import cv2
+
+    from ccdn.detector import _halvings
+
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    odd = cv2.resize(gray, (1003, 757), interpolation=cv2.INTER_CUBIC)  # odd sides: every level crops
+    levels = _halvings(odd, 3)
+    for k, level in zip((2, 4, 8), levels):
+        cropped = odd[: 757 - 757 % k, : 1003 - 1003 % k]
+        direct = cv2.resize(cropped, (1003 // k, 757 // k), interpolation=cv2.INTER_AREA)
+        assert level.shape == direct.shape
+        assert np.abs(level.astype(int) - direct).max() <= 2  # rounding at each halving only
+
+
 def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(examples):
     import cv2
 

@@ -127,8 +127,9 @@ class Detector:
         clock.lap("load")
         xy = values = found = shrunk = None
         model = self.coarse_model
-        for scale in _coarse_scales(gray.shape) if self.coarse_to_fine else ():
-            xy, values, found, score = self._coarse(gray, scale, boards, board_size, clock)
+        scales = _coarse_scales(gray.shape) if self.coarse_to_fine else []
+        for scale, small in zip(scales, _halvings(gray, len(scales))[::-1]):
+            xy, values, found, score = self._coarse(gray, small, scale, boards, board_size, clock)
             if xy is not None:
                 break
             shrunk = score, scale  # the finest shrunk pass's, in the end
@@ -144,12 +145,10 @@ class Detector:
         """The network's raw (H, W) float32 score map, for inspection."""
         return self._session.scores(self.load(image))
 
-    def _coarse(self, gray: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
-        """The pass on gray shrunk `scale` times: (xy, values, boards, its score map), xy, values and
-        boards None when the squares are too small to trust there (judged first on the peaks, before
-        any refinement, then on the corners found)."""
-        h, w = gray.shape  # cropped to a multiple of scale: the shrunk pixels then map exactly onto gray's
-        small = cv2.resize(gray[: h - h % scale, : w - w % scale], (w // scale, h // scale), interpolation=cv2.INTER_AREA)
+    def _coarse(self, gray: np.ndarray, small: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
+        """The pass on `small`, gray shrunk `scale` times (_halvings): (xy, values, boards, its score
+        map), xy, values and boards None when the squares are too small to trust there (judged first
+        on the peaks, before any refinement, then on the corners found)."""
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
@@ -255,6 +254,19 @@ def _coarse_scales(shape: tuple[int, ...]) -> list[int]:
         scales.append(scale)
         scale *= 2
     return scales[::-1]
+
+
+def _halvings(gray: np.ndarray, count: int) -> list[np.ndarray]:
+    """gray shrunk 2, 4, ... 2^count times, each level the previous one (cropped to even sides)
+    halved by 2x2 pixel means: level k covers gray's first floor(h / 2^k) 2^k rows and as many
+    columns, so its pixels map exactly onto gray's. OpenCV halves with a fast path that other
+    factors lack (measured at 2000x1500: 0.06 ms for 2x, 0.75 ms for 8x at once, 0.08 ms for all
+    three halvings); a level differs from a direct 2^k-fold mean by rounding, a grey level or two."""
+    levels = [gray]
+    for _ in range(count):
+        h, w = levels[-1].shape
+        levels.append(cv2.resize(levels[-1][: h - h % 2, : w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA))
+    return levels[1:]
 
 
 def _gaps(xy: np.ndarray) -> np.ndarray:
