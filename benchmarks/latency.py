@@ -2,9 +2,10 @@
 
 Frames are the real-dev photos (or the bundled examples when ../shared is absent) converted to gray
 and resized to each size, decoded once up front: the timed call goes from a uint8 frame to refined
-corners. Each configuration gets a warm-up pass, then `--repeat` passes over all frames; we report
-the median and the 10th/90th percentiles per stage, and ("best") the median over frames of each
-frame's fastest pass, which a shared machine's passing load disturbs far less. OpenCV's
+corners. Each configuration gets a warm-up, then the configurations take turns, one pass over all
+frames each, `--repeat` rounds; we report the median and the 10th/90th percentiles per stage, and
+("best") the median over frames of each frame's fastest pass, which a shared machine's passing
+load disturbs far less. OpenCV's
 findChessboardCornersSB, given the true board size, runs on the same frames for comparison. Cold
 start (import + session + first detect) is timed in fresh processes (median of 5, bytecode cached); peak RSS is the process's high-water mark after each size.
 
@@ -49,24 +50,31 @@ def stats(samples: list[float]) -> dict:
     return {"median_ms": float(np.median(a)), "p10_ms": float(np.percentile(a, 10)), "p90_ms": float(np.percentile(a, 90))}
 
 
-def time_detector(detector: ccdn.Detector, frames: list[np.ndarray], repeat: int) -> dict:
-    """Per-stage stats over every pass of every frame, and under "best_total" the median over frames
-    of each frame's fastest pass: on a shared machine a pass slowed by another process's load moves
-    the plain median by several ms, the best of `repeat` passes per frame much less."""
-    for f in frames[:3]:
-        detector.detect(f)
-    stages: dict[str, list[float]] = {"total": []}
+def time_detectors(detectors: list[ccdn.Detector], frames: list[np.ndarray], repeat: int) -> list[dict]:
+    """For each detector, per-stage stats over every pass of every frame, and under "best_total" the
+    median over frames of each frame's fastest pass. The detectors take turns, one pass over the
+    frames each, `repeat` rounds: a shared machine's passing load then slows a pass of each rather
+    than every pass of one (measured: run one after the other, a whole configuration's median and
+    its best of 5 moved from ~13 to ~23 ms in one run while the next configuration's did not)."""
+    for detector in detectors:
+        for f in frames[:3]:
+            detector.detect(f)
+    stages: list[dict[str, list[float]]] = [{"total": []} for _ in detectors]
     for _ in range(repeat):
-        for f in frames:
-            t0 = time.perf_counter()
-            result = detector.detect(f)
-            stages["total"].append((time.perf_counter() - t0) * 1e3)
-            for k, v in result.timings_ms.items():
-                stages.setdefault(k, []).append(v)
-    report = {k: stats(v) for k, v in stages.items()}
-    best = np.reshape(stages["total"], (repeat, len(frames))).min(0)
-    report["best_total"] = {"median_ms": float(np.median(best))}
-    return report
+        for detector, samples in zip(detectors, stages):
+            for f in frames:
+                t0 = time.perf_counter()
+                result = detector.detect(f)
+                samples["total"].append((time.perf_counter() - t0) * 1e3)
+                for k, v in result.timings_ms.items():
+                    samples.setdefault(k, []).append(v)
+    reports = []
+    for samples in stages:
+        report = {k: stats(v) for k, v in samples.items()}
+        best = np.reshape(samples["total"], (repeat, len(frames))).min(0)
+        report["best_total"] = {"median_ms": float(np.median(best))}
+        reports.append(report)
+    return reports
 
 
 def time_opencv(frames: list[np.ndarray], sizes: list[tuple[int, int] | None], repeat: int) -> dict | None:
@@ -128,12 +136,10 @@ def main(argv: list[str] | None = None) -> None:
     for w, h in SIZES:
         frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA if f.shape[1] > w else cv2.INTER_LINEAR)
                   for f, _ in loaded]
-        for model in args.models:
-            for threads in args.threads:
-                detector = ccdn.Detector(_model_arg(model), threads)
-                run = {"size": f"{w}x{h}", "threads": threads, "model": detector.models,
-                       "stages": time_detector(detector, frames, args.repeat)}
-                report["runs"].append(run)
+        detectors = [ccdn.Detector(_model_arg(model), threads) for model in args.models for threads in args.threads]
+        for detector, stages in zip(detectors, time_detectors(detectors, frames, args.repeat)):
+            report["runs"].append({"size": f"{w}x{h}", "threads": detector.threads, "model": detector.models,
+                                   "stages": stages})
         if not args.no_opencv:
             cv2.setNumThreads(max(args.threads))
             report["runs"].append({"size": f"{w}x{h}", "threads": max(args.threads), "model": "opencv-findChessboardCornersSB",
