@@ -1,0 +1,51 @@
+"""The benchmark scripts run end to end at their smallest settings and write the JSON they document."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(script: str, out: Path, *args: str) -> dict:
+    """Run benchmarks/<script> with --json out and the given arguments; its JSON report."""
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), *args, "--json", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"written {out}" in done.stdout
+    return json.loads(out.read_text())
+
+
+def test_latency_times_every_stage_at_both_sizes(tmp_path):
+    report = _run("latency.py", tmp_path / "latency.json", "--frames", "1", "--repeat", "2", "--threads", "1",
+                  "--no-opencv")
+    assert [run["size"] for run in report["runs"]] == ["640x480", "2000x1500"]
+    for run in report["runs"]:
+        stages = run["stages"]
+        assert {"total", "best_total", "network", "peaks", "refine"} <= set(stages)
+        assert 0 < stages["best_total"]["median_ms"] <= stages["total"]["p90_ms"]
+        assert stages["network"]["median_ms"] < stages["total"]["median_ms"]
+    assert report["cold_start_ms"]["default"] > 0
+    assert report["peak_rss_mb_after_640x480"] > 0 and report["peak_rss_mb_after_2000x1500"] > 0
+
+
+def test_stress_counts_a_clean_render_whole_and_a_boardless_one_empty(tmp_path):
+    report = _run("stress.py", tmp_path / "stress.json", "--per-subset", "1", "--subsets", "clean", "no-board",
+                  "--detectors", "ccdn")
+    clean, empty = (report["subsets"][name]["detectors"]["ccdn"] for name in ("clean", "no-board"))
+    assert clean["labels"] > 0 and clean["missed_pct"] == 0 and clean["false_positives"] == 0
+    assert clean["accuracy_px"] < 0.1
+    assert empty["labels"] == 0 and empty["false_positives"] == 0
+
+
+def test_accuracy_reports_the_paper_metrics_per_group(tmp_path):
+    report = _run("accuracy.py", tmp_path / "accuracy.json", "--synthetic", "3", "--no-real-dev")
+    rendered = [row for row in report["per_image"] if row["group"] == "synthetic"]
+    assert len(rendered) == 3 and len(report["per_image"]) == 4  # and one render without a board
+    assert all(row["hits"] + row["missed"] == row["labels"] for row in rendered)
+    group = report["groups"]["synthetic"]
+    assert group["labels"] == sum(row["labels"] for row in rendered) > 0
+    assert abs(group["missed_pct"] - 100 * sum(row["missed"] for row in rendered) / group["labels"]) < 1e-9
