@@ -7,7 +7,8 @@ frames each, `--repeat` rounds; we report the median and the 10th/90th percentil
 ("best") the median over frames of each frame's fastest pass, which a shared machine's passing
 load disturbs far less. OpenCV's
 findChessboardCornersSB, given the true board size, runs on the same frames for comparison. Cold
-start (import + session + first detect) is timed in fresh processes (median of 5, bytecode cached); peak RSS is the process's high-water mark after each size.
+start (import + session + first detect) is timed in fresh processes (median of 5, bytecode cached),
+and so is peak RSS (a process that detects every frame at one size with one detector).
 
     python benchmarks/latency.py [--models default paper fast] [--repeat 3] [--json out/latency.json]
 """
@@ -18,10 +19,10 @@ import argparse
 import json
 import os
 import platform
-import resource
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -36,18 +37,35 @@ REAL_DEV = ROOT.parent / "shared" / "data" / "real-dev"
 SIZES = [(640, 480), (2000, 1500)]
 
 
-def load_frames(limit: int) -> list[tuple[np.ndarray, tuple[int, int] | None]]:
-    """Gray frames with their board size (cols, rows), from real-dev or the bundled examples."""
+def iter_frames(limit: int) -> Iterator[tuple[np.ndarray, tuple[int, int] | None]]:
+    """Gray frames with their board size (cols, rows), from real-dev or the bundled examples, decoded
+    one at a time."""
     if (REAL_DEV / "labels.json").is_file():
-        meta = json.loads((REAL_DEV / "labels.json").read_text())["images"][:limit]
-        return [(cv2.imread(str(REAL_DEV / "images" / m["file"]), cv2.IMREAD_GRAYSCALE),
-                 (m["boards"][0]["cols"], m["boards"][0]["rows"])) for m in meta]
-    return [(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), None) for p in sorted((ROOT / "examples").glob("*.jpg"))]
+        for m in json.loads((REAL_DEV / "labels.json").read_text())["images"][:limit]:
+            yield (cv2.imread(str(REAL_DEV / "images" / m["file"]), cv2.IMREAD_GRAYSCALE),
+                   (m["boards"][0]["cols"], m["boards"][0]["rows"]))
+    else:
+        for p in sorted((ROOT / "examples").glob("*.jpg")):
+            yield cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), None
+
+
+def load_frames(limit: int) -> list[tuple[np.ndarray, tuple[int, int] | None]]:
+    """iter_frames' frames, all decoded."""
+    return list(iter_frames(limit))
+
+
+def resized(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """frame resized to size (w, h): area averaging to shrink, bilinear to enlarge."""
+    return cv2.resize(frame, size, interpolation=cv2.INTER_AREA if frame.shape[1] > size[0] else cv2.INTER_LINEAR)
 
 
 def stats(samples: list[float]) -> dict:
     a = np.asarray(samples)
     return {"median_ms": float(np.median(a)), "p10_ms": float(np.percentile(a, 10)), "p90_ms": float(np.percentile(a, 90))}
+
+
+SETTLE_S = 0.1  # a pause before each pass: a multi-threaded session's workers spin on ~30 ms after its last
+# run (measured), on the cores the next configuration's first frames would need
 
 
 def time_detectors(detectors: list[ccdn.Detector], frames: list[np.ndarray], repeat: int) -> list[dict]:
@@ -62,6 +80,7 @@ def time_detectors(detectors: list[ccdn.Detector], frames: list[np.ndarray], rep
     stages: list[dict[str, list[float]]] = [{"total": []} for _ in detectors]
     for _ in range(repeat):
         for detector, samples in zip(detectors, stages):
+            time.sleep(SETTLE_S)
             for f in frames:
                 t0 = time.perf_counter()
                 result = detector.detect(f)
@@ -109,8 +128,29 @@ def cold_start(model: str | None, repeat: int = 5) -> float:
     return float(np.median([float(r.stdout.strip()) for r in runs[1:]]))
 
 
-def peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+def own_peak_rss_mb() -> float:
+    """This process's peak RSS in MB: Linux's VmHWM, which starts afresh with the process's program
+    (getrusage's ru_maxrss also counts the parent's, inherited across fork and exec)."""
+    status = Path("/proc/self/status")
+    if status.is_file():
+        for line in status.read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1 << 20 if sys.platform == "darwin" else 1 << 10)
+
+
+def peak_rss_mb(model: str | None, size: tuple[int, int], frames: int, threads: int) -> float:
+    """Peak RSS (MB) of a fresh process that builds the detector and detects every frame at `size`:
+    what an app running that one detector holds (this process, with every configuration's detector
+    alive at once, would hold them all)."""
+    code = ("import sys, ccdn; sys.path.insert(0, sys.argv[1]); from latency import iter_frames, resized, own_peak_rss_mb; "
+            f"d = ccdn.Detector({model!r}, {threads}); [d.detect(resized(f, {size!r})) for f, _ in iter_frames({frames})]; "
+            "print(own_peak_rss_mb())")
+    done = subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent)], capture_output=True, text=True,
+                          check=True)
+    return float(done.stdout.strip())
 
 
 STAGES = ("load", "network", "peaks", "refine", "boards", "edges")
@@ -132,10 +172,10 @@ def main(argv: list[str] | None = None) -> None:
     report = {"machine": {"cpu": cpu_name(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},
               "frames": len(loaded), "repeat": args.repeat,
-              "cold_start_ms": {m: cold_start(_model_arg(m)) * 1e3 for m in args.models}, "runs": []}
+              "cold_start_ms": {m: cold_start(_model_arg(m)) * 1e3 for m in args.models}, "peak_rss_mb": {},
+              "runs": []}
     for w, h in SIZES:
-        frames = [cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA if f.shape[1] > w else cv2.INTER_LINEAR)
-                  for f, _ in loaded]
+        frames = [resized(f, (w, h)) for f, _ in loaded]
         detectors = [ccdn.Detector(_model_arg(model), threads) for model in args.models for threads in args.threads]
         for detector, stages in zip(detectors, time_detectors(detectors, frames, args.repeat)):
             report["runs"].append({"size": f"{w}x{h}", "threads": detector.threads, "model": detector.models,
@@ -144,7 +184,9 @@ def main(argv: list[str] | None = None) -> None:
             cv2.setNumThreads(max(args.threads))
             report["runs"].append({"size": f"{w}x{h}", "threads": max(args.threads), "model": "opencv-findChessboardCornersSB",
                                    "stages": time_opencv(frames, board_sizes, 1)})
-        report[f"peak_rss_mb_after_{w}x{h}"] = peak_rss_mb()
+        for model in args.models:
+            rss = peak_rss_mb(_model_arg(model), (w, h), args.frames, max(args.threads))
+            report["peak_rss_mb"].setdefault(model, {})[f"{w}x{h}"] = rss
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     print(format_table(report))
@@ -173,7 +215,9 @@ def format_table(report: dict) -> str:
     lines += ratios
     lines += [f"cold start {m} (import + session + first detect of a blank 640x480 frame, median of 5): {v:.0f} ms"
               for m, v in report["cold_start_ms"].items()]
-    lines += [f"{k}: {v:.0f}" for k, v in report.items() if k.startswith("peak_rss")]
+    lines += [f"peak RSS {m} ({max(r['threads'] for r in report['runs'])} threads, a fresh process detecting every "
+              f"frame): " + ", ".join(f"{v:.0f} MB at {size}" for size, v in sizes.items())
+              for m, sizes in report["peak_rss_mb"].items()]
     return "\n".join(lines)
 
 
