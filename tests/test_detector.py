@@ -180,23 +180,6 @@ def test_shrunk_frames_are_halvings_that_map_onto_the_frame_like_a_direct_area_m
         assert np.abs(level.astype(int) - direct).max() <= 2  # rounding at each halving only
 
 
-def test_a_board_with_6_px_squares_on_the_8x_frame_skips_the_4x_pass(examples):
-    import cv2
-
-    gray = cv2.imread(str(examples["distorted"]["path"]), cv2.IMREAD_GRAYSCALE)
-    big = cv2.resize(gray, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)  # squares ~6 px on the 8x frame
-    frame = cv2.copyMakeBorder(big, 0, 1500 - big.shape[0], 0, 2000 - big.shape[1], cv2.BORDER_REPLICATE)
-    truth = (examples["distorted"]["corners"] + 0.5) * 3 - 0.5
-    detector = ccdn.Detector(threads=2)
-    shapes = _network_frames(detector)
-    coarse = detector.detect(frame)
-    full = ccdn.Detector(threads=2, coarse_to_fine=False).detect(frame)
-    assert shapes == [(187, 250, ccdn.models.default_coarse_model())]  # the next pass is shrunk too: skipped
-    errors = [nearest_distances(r.xy, truth) for r in (coarse, full)]  # an upscaled, blurred board: ~0.16 px
-    assert len(coarse) == len(full) == 77
-    assert max(errors[0]) < 0.5 and np.mean(errors[0]) < np.mean(errors[1]) + 0.02
-
-
 def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(examples):
     import cv2
 

@@ -7,10 +7,9 @@ which averages the noise over whole edges.
 Frames go coarse-to-fine: the network first runs on the frame shrunk by the largest power of two
 that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x, 4x, then 2x).
 When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass finds boards whose
-squares are that big on the shrunk frame (COARSE_MIN_SQUARE_BEFORE_SHRUNK when the next pass is
-shrunk too), their corners are refined on the full-resolution image and the finer passes are
-skipped; otherwise the next finer pass runs, down to the full frame, which is scored only inside
-boxes around what the finest shrunk pass responded to (ccdn.regions: a frame
+squares are that big on the shrunk frame, their corners are refined on the full-resolution image
+and the finer passes are skipped; otherwise the next finer pass runs, down to the full frame, which
+is scored only inside boxes around what the finest shrunk pass responded to (ccdn.regions: a frame
 with nothing there costs no full-resolution network). Small squares and frames without a board
 therefore pay for the shrunk passes, and a board too small to be seen shrunk is lost when another
 board in the same frame has squares big enough (measured in benchmarks/; README).
@@ -50,12 +49,6 @@ COARSE_MIN_SIDE = 160  # px: the shorter side of a frame shrunk for a coarse pas
 # (network 27 vs 7 ms); 90 adds a 16x pass at 2000x1500 that never finds the board there
 COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass (chosen on the
 # stress renders: at 7 their figures stay those of the full-resolution pass)
-COARSE_MIN_SQUARE_BEFORE_SHRUNK = 5.0  # px: the same for the corners found, when the next pass is another shrunk one
-# (2000x1500: 8x then 4x): measured, boards found with 5-7 px squares there are the next pass's (real-dev at
-# native size and at 2000x1500, 92 frames, and 120 renders of every stress condition at 2000x1500 with 36-60 px
-# squares: the same corners, none missed or added), and their frames save that pass (one exception found: a board
-# pasted on a flat frame 7 px below its last corner row lost that row's corner at 6.75 px squares, as at 7.0 before);
-# before the full-frame pass 5 lost 4 corners of the stress renders (extreme pose 2, fisheye 1, occluded 1)
 COARSE_MAX_SHIFT = 3.0  # shrunk px a corner may lie from its peak on a shrunk frame: `fast`'s peaks there can be
 # ~2 px off (its 4x4-pixel output cells; 2.0 lost such a corner: stress partial 0.22 -> 0.11 % missed, the rest as it was)
 FULL_FRAME_UNEVEN_SEEDS = 1  # on the full frame a seed square may have a corner whose quads an occluder's edge
@@ -135,9 +128,8 @@ class Detector:
         xy = values = found = shrunk = None
         model = self.coarse_model
         scales = _coarse_scales(gray.shape) if self.coarse_to_fine else []
-        for k, (scale, small) in enumerate(zip(scales, _halvings(gray, len(scales))[::-1])):
-            min_square = COARSE_MIN_SQUARE if k + 1 == len(scales) else COARSE_MIN_SQUARE_BEFORE_SHRUNK
-            xy, values, found, score = self._coarse(gray, small, scale, min_square, boards, board_size, clock)
+        for scale, small in zip(scales, _halvings(gray, len(scales))[::-1]):
+            xy, values, found, score = self._coarse(gray, small, scale, boards, board_size, clock)
             if xy is not None:
                 break
             shrunk = score, scale  # the finest shrunk pass's, in the end
@@ -153,18 +145,17 @@ class Detector:
         """The network's raw (H, W) float32 score map, for inspection."""
         return self._session.scores(self.load(image))
 
-    def _coarse(self, gray: np.ndarray, small: np.ndarray, scale: int, min_square: float, boards: bool, board_size,
-                clock: _Clock):
+    def _coarse(self, gray: np.ndarray, small: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
         """The pass on `small`, gray shrunk `scale` times (_halvings): (xy, values, boards, its score
         map), xy, values and boards None when the squares are too small to trust there (judged first
-        on the peaks, before any refinement, then on the corners found: below `min_square`)."""
+        on the peaks, before any refinement, then on the corners found)."""
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
         if len(xy) < 9 or quantile(gaps, 0.75) < COARSE_MIN_SQUARE:
             return None, None, None, score
         xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
-        if len(xy) < 9 or median(_gaps(xy)) / scale < min_square:
+        if len(xy) < 9 or median(_gaps(xy)) / scale < COARSE_MIN_SQUARE:
             return None, None, None, score
         return xy, values, found, score
 
