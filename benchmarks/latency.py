@@ -5,10 +5,10 @@ and resized to each size, decoded once up front: the timed call goes from a uint
 corners. Each configuration gets a warm-up, then the configurations take turns, one pass over all
 frames each, `--repeat` rounds; we report the median and the 10th/90th percentiles per stage, and
 ("best") the median over frames of each frame's fastest pass, which a shared machine's passing
-load disturbs far less. OpenCV's
-findChessboardCornersSB, given the true board size, runs on the same frames for comparison. Cold
-start (import + session + first detect) is timed in fresh processes (median of 5, bytecode cached),
-and so is peak RSS (a process that detects every frame at one size with one detector).
+load disturbs far less. OpenCV's findChessboardCornersSB, given the true board size, runs on the
+same frames for comparison. Cold start (import + session + first detect) is timed in fresh
+processes (median of 5, bytecode cached), and so is peak RSS (a process that detects every frame at
+one size with one detector).
 
     python benchmarks/latency.py [--models default paper fast] [--repeat 3] [--json out/latency.json]
 """
