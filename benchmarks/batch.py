@@ -35,20 +35,19 @@ REAL_DEV = ROOT.parent / "shared" / "data" / "real-dev" / "images"
 MEMORY_SIZES = [(64, 48), (2000, 1500), (4000, 3000)]
 
 
-# The child reports its own high-water mark (VmHWM) on exit: ru_maxrss from wait4 would also count
-# the parent's, which Linux carries into a vforked child across exec.
+# The child reports its own high-water mark on exit (machine.own_peak_rss_mb): ru_maxrss from wait4
+# would also count the parent's, which Linux carries into a vforked child across exec.
 PEAK_REPORTER = """import atexit, runpy, sys
-def report():
-    hwm = [l.split()[1] for l in open("/proc/self/status") if l.startswith("VmHWM:")]
-    print(int(hwm[0]) // 1024 if hwm else -1)
-atexit.register(report)
+sys.path.insert(0, sys.argv.pop(1))
+from machine import own_peak_rss_mb
+atexit.register(lambda: print(int(own_peak_rss_mb())))
 sys.argv = ["ccdn", *sys.argv[1:]]
 runpy.run_module("ccdn.cli", run_name="__main__")
 """
 
 
 def ccdn_command(*args: str) -> list[str]:
-    return [sys.executable, "-c", PEAK_REPORTER, "detect", *args, "--quiet"]
+    return [sys.executable, "-c", PEAK_REPORTER, str(Path(__file__).parent), "detect", *args, "--quiet"]
 
 
 def run_measured(command: list[str]) -> tuple[float, int, int]:

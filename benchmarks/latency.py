@@ -128,24 +128,12 @@ def cold_start(model: str | None, repeat: int = 5) -> float:
     return float(np.median([float(r.stdout.strip()) for r in runs[1:]]))
 
 
-def own_peak_rss_mb() -> float:
-    """This process's peak RSS in MB: Linux's VmHWM, which starts afresh with the process's program
-    (getrusage's ru_maxrss also counts the parent's, inherited across fork and exec)."""
-    status = Path("/proc/self/status")
-    if status.is_file():
-        for line in status.read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1 << 20 if sys.platform == "darwin" else 1 << 10)
-
-
 def peak_rss_mb(model: str | None, size: tuple[int, int], frames: int, threads: int) -> float:
     """Peak RSS (MB) of a fresh process that builds the detector and detects every frame at `size`:
     what an app running that one detector holds (this process, with every configuration's detector
     alive at once, would hold them all)."""
-    code = ("import sys, ccdn; sys.path.insert(0, sys.argv[1]); from latency import iter_frames, resized, own_peak_rss_mb; "
+    code = ("import sys, ccdn; sys.path.insert(0, sys.argv[1]); from latency import iter_frames, resized; "
+            "from machine import own_peak_rss_mb; "
             f"d = ccdn.Detector({model!r}, {threads}); [d.detect(resized(f, {size!r})) for f, _ in iter_frames({frames})]; "
             "print(own_peak_rss_mb())")
     done = subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent)], capture_output=True, text=True,

@@ -17,7 +17,8 @@ board in the same frame has squares big enough (measured in benchmarks/; README)
 The default detector is a cascade: the shrunk passes run the cheap `fast` model (`fast-int8` on
 CPUs with VNNI: ccdn.models.default_coarse_model), whose one weakness, corners closer than ~5 px (its
 4x4-pixel output cells), cannot matter there, since a shrunk pass is kept only when its squares are
->= COARSE_MIN_SQUARE px; the full-frame pass, which small squares reach, runs the paper net. A model named explicitly runs every pass itself.
+>= COARSE_MIN_SQUARE px; the full-frame pass, which small squares reach, runs the paper net. A model
+named explicitly runs every pass itself.
 """
 
 from __future__ import annotations
