@@ -262,3 +262,23 @@ def test_a_coarse_pass_lets_refinement_walk_three_shrunk_pixels_from_a_peak():
     scene = calm_scene(7_130_015, square_px=(45.0, 110.0), max_tilt_deg=40.0)  # the stress set's partial render
     corner = np.array([[48.0, 476.4]])
     assert nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, corner)[0] < 0.1
+
+
+def test_a_board_is_not_grown_into_cells_flatter_than_a_seed_square():
+    """At 60-75 degrees of tilt a board's squares thin to slivers whose tips, where two squares of one
+    colour nearly touch, score like corners; grown into cells flatter than a seed square may be
+    (sine of the lattice steps' angle <= ccdn.grid.MIN_SINE), a board took a lattice of such tips:
+    on the stress set's extreme-pose render 7100021, 16 of a 25-corner board's corners lay 2-4 px
+    from every true corner. A steep board whose cells stay above that (render 7100050, sines down to
+    0.45) is still found whole."""
+    from conftest import calm_scene
+
+    detector = ccdn.Detector(threads=2)
+    steep = dict(square_px=(15.0, 60.0), min_tilt_deg=60.0, max_tilt_deg=75.0)  # the stress set's extreme pose
+    sliver = calm_scene(7_100_021, **steep)
+    found = detector.detect(sliver.image).xy
+    assert (nearest_distances(sliver.corners, found) < 1.5).all()  # every corner found is a true one
+    board = calm_scene(7_100_050, **steep)
+    found = detector.detect(board.image).xy
+    assert (nearest_distances(found, board.corners) < 1.5).all()  # every true corner found
+    assert (nearest_distances(board.corners, found) < 1.5).all()

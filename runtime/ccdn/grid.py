@@ -20,7 +20,11 @@ step anywhere, as under lens distortion, stops this). Then position by
 position: each empty neighbour of the grid is predicted from the grid (along a row or column from
 the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms with
 diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of the
-shorter local lattice step is taken if it passes the image test. When nothing more can be added,
+shorter local lattice step is taken if it passes the image test. No corner is taken where the
+local steps are flatter than a seed's may be (the sine of their angle at most MIN_SINE, in every
+growth step): on the slivers of boards tilted 60-75 degrees the tips where two squares of one colour
+nearly touch score like corners, and a lattice of such tips passed the image test (a stress render:
+16 of a board's 25 corners 2-4 px off). When nothing more can be added,
 growth may jump over one missing position along a row or column (a hole, not the end of the
 board). Corners left with fewer than two row/column neighbours are then dropped (lone points on the
 outline), and so is an outermost row or column that is a stub of the line inside it (at most 0.3 of
@@ -87,6 +91,7 @@ SEED_REACH = 24  # ... and its fourth corner among these
 SEED_CHUNK = 256  # seeds checked at once
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 TOLERANCE = 0.3  # of the shorter local lattice step
+MIN_SINE = 0.3  # of the angle between the lattice steps: flatter cells are too sheared to sample
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
 RELATIVE_CONTRAST = 0.2  # of the seed's median contrast
 SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's diagonals) from their centres:
@@ -245,15 +250,17 @@ class _Grower:
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
                  strict: bool = False, min_pairs: int = 1) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
-        image are not counted); strict (for corners the network did not propose): also the seed's
+        image are not counted; steps flatter than a seed's fail: MIN_SINE); strict (for corners the network did not propose): also the seed's
         test of even contrast and uniform quads, which points on a board's outline next to clutter
         fail, with at least min_pairs of the 4 quad pairs on the image; without it, a point that
         fails gets the module docstring's second chance."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
+        square = _square_enough(u, v)
         if strict:  # the strict test (completion's corners, prune's lone ones) gets no second chance
             diffs, spread = quad_differences(self.sampler, points, u, v)
-            return self._alternate(diffs * sign[:, None], spread, strict) & (np.isfinite(diffs).sum(1) >= min_pairs)
+            on_image = np.isfinite(diffs).sum(1) >= min_pairs
+            return self._alternate(diffs * sign[:, None], spread, strict) & on_image & square
         # the second chance (module docstring), sampled in the same call: one quad may be hidden,
         # the corner's surroundings may not
         k = len(points)
@@ -262,7 +269,8 @@ class _Grower:
         diffs *= np.tile(sign, 2)[:, None]
         far, near = diffs[:k], diffs[k:]
         three_quads = (np.fmin.reduce(far[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
-        return self._alternate(far, spread[:k], False) | (three_quads & self._alternate(near, spread[k:], True))
+        second_chance = three_quads & self._alternate(near, spread[k:], True)
+        return (self._alternate(far, spread[:k], False) | second_chance) & square
 
     def _alternate(self, diffs: np.ndarray, spread: np.ndarray, strict: bool) -> np.ndarray:
         """(K,) whether quad pair differences diffs (K, 4), in the board's sign, alternate enough;
@@ -526,6 +534,12 @@ def _shorter(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.minimum(np.hypot(u[:, 0], u[:, 1]), np.hypot(v[:, 0], v[:, 1]))
 
 
+def _square_enough(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(K,) whether the cells spanned by steps u, v (K, 2) are no flatter than a seed square may be."""
+    cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+    return cross > MIN_SINE * np.hypot(u[:, 0], u[:, 1]) * np.hypot(v[:, 0], v[:, 1])
+
+
 def _row_col_neighbours(filled: np.ndarray) -> np.ndarray:
     """How many of each cell's 4 row/column neighbours are filled."""
     count = np.zeros(filled.shape, np.int64)
@@ -566,7 +580,7 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     u, v = xy[nb[:, i]] - p, xy[nb[:, j]] - p  # (S, P, 2)
     lu, lv = np.linalg.norm(u, axis=2), np.linalg.norm(v, axis=2)
     cross = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
-    ok = (nb_valid[:, i] & nb_valid[:, j] & (np.abs(cross) > 0.3 * lu * lv) & (lu < 5 * lv) & (lv < 5 * lu)
+    ok = (nb_valid[:, i] & nb_valid[:, j] & (np.abs(cross) > MIN_SINE * lu * lv) & (lu < 5 * lv) & (lv < 5 * lu)
           & (np.abs(cross) >= MIN_SQUARE_PX * np.maximum(lu, lv)))
     si, pi = np.nonzero(ok)  # the fourth corner is sought for the plausible pairs only
     flip = cross[si, pi] < 0
