@@ -250,10 +250,10 @@ class _Grower:
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
                  strict: bool = False, min_pairs: int = 1) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
-        image are not counted; steps flatter than a seed's fail: MIN_SINE); strict (for corners the network did not propose): also the seed's
-        test of even contrast and uniform quads, which points on a board's outline next to clutter
-        fail, with at least min_pairs of the 4 quad pairs on the image; without it, a point that
-        fails gets the module docstring's second chance."""
+        image are not counted; steps flatter than a seed's fail: MIN_SINE); strict (for corners the
+        network did not propose): also the seed's test of even contrast and uniform quads, which
+        points on a board's outline next to clutter fail, with at least min_pairs of the 4 quad
+        pairs on the image; without it, a point that fails gets the module docstring's second chance."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         square = _square_enough(u, v)
