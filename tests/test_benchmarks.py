@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -33,9 +35,11 @@ def test_latency_times_every_stage_at_both_sizes(tmp_path):
     assert set(rss) == {"640x480", "2000x1500"} and min(rss.values()) > 0
 
 
-def test_stress_counts_a_clean_render_whole_and_a_boardless_one_empty(tmp_path):
+@pytest.mark.parametrize("check", [[], ["--fast-check"]])
+def test_stress_counts_a_clean_render_whole_and_a_boardless_one_empty(tmp_path, check):
     report = _run("stress.py", tmp_path / "stress.json", "--per-subset", "1", "--subsets", "clean", "no-board",
-                  "--detectors", "ccdn")
+                  "--detectors", "ccdn", *check)
+    assert ("fast check" in report["config"]["detectors"]["ccdn"]) == bool(check)
     clean, empty = (report["subsets"][name]["detectors"]["ccdn"] for name in ("clean", "no-board"))
     assert clean["labels"] > 0 and clean["missed_pct"] == 0 and clean["false_positives"] == 0
     assert clean["accuracy_px"] < 0.1

@@ -78,13 +78,21 @@ class Detector:
     coarse_to_fine: try passes on the frame shrunk first (see the module docstring); only with the
     grid filter, whose boards tell whether a shrunk pass saw enough, and a sub-pixel refinement
     (the attribute says whether it applies).
+    fast_check: for live previews, like OpenCV's CALIB_CB_FAST_CHECK: never run the full-resolution
+    pass. A frame whose shrunk passes find no board returns no corners at once (boardless 640x480
+    stress renders: ~4 ms against ~80), and the finest shrunk pass keeps the boards it finds
+    whatever their squares' size, having no finer pass to defer to. The price is the boards that
+    pass cannot see: squares too small for the shrunk frame, steep, glaring or strongly distorted
+    views (README; benchmarks/stress.py --fast-check). Frames too small to shrink (shorter side
+    under 2 x COARSE_MIN_SIDE) and detectors without coarse-to-fine run the full frame as usual.
     detect() is thread-safe: one Detector may serve several threads.
     """
 
     def __init__(self, model: str | os.PathLike | None = None, threads: int | None = None, *,
                  coarse_model: str | os.PathLike | None = None, spinning: bool = True, relative: float | None = None,
                  floor: float | None = None, filter: str = "grid", refinement: str = "saddle",
-                 coarse_to_fine: bool = True, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
+                 coarse_to_fine: bool = True, fast_check: bool = False,
+                 max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
         if filter not in FILTERS:
             raise ValueError(f"unknown filter {filter!r}; choose from {FILTERS}")
         self._session = ScoreSession(model, threads, spinning)
@@ -101,6 +109,7 @@ class Detector:
         self._coarse_session = (ScoreSession(coarse_model, threads, spinning) if self.coarse_to_fine and coarse_model
                                 is not None else self._session)
         self.coarse_model = self._coarse_session.info
+        self.fast_check = fast_check
         self.max_pixels = max_pixels
 
     @property
@@ -130,11 +139,14 @@ class Detector:
         model = self.coarse_model
         scales = _coarse_scales(gray.shape) if self.coarse_to_fine else []
         for scale, small in zip(scales, _halvings(gray, len(scales))[::-1]):
-            xy, values, found, score = self._coarse(gray, small, scale, boards, board_size, clock)
+            any_squares = self.fast_check and scale == scales[-1]  # the finest shrunk pass: none finer to defer to
+            xy, values, found, score = self._coarse(gray, small, scale, boards, board_size, clock, any_squares)
             if xy is not None:
                 break
             shrunk = score, scale  # the finest shrunk pass's, in the end
-        if xy is None:
+        if xy is None and self.fast_check and shrunk is not None:
+            xy, values, found = np.zeros((0, 2), np.float32), np.zeros(0, np.float32), ()
+        elif xy is None:
             model = self.model
             boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape)
             xy, values, found = self._corners(gray, gray, 1, *self._peaks(self._session, gray, clock, boxes), boards,
@@ -146,17 +158,19 @@ class Detector:
         """The network's raw (H, W) float32 score map, for inspection."""
         return self._session.scores(self.load(image))
 
-    def _coarse(self, gray: np.ndarray, small: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock):
+    def _coarse(self, gray: np.ndarray, small: np.ndarray, scale: int, boards: bool, board_size, clock: _Clock,
+                any_squares: bool = False):
         """The pass on `small`, gray shrunk `scale` times (_halvings): (xy, values, boards, its score
         map), xy, values and boards None when the squares are too small to trust there (judged first
-        on the peaks, before any refinement, then on the corners found)."""
+        on the peaks, before any refinement, then on the corners found: with any_squares, only on
+        the peaks) or no board is found."""
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
         if len(xy) < 9 or quantile(gaps, 0.75) < COARSE_MIN_SQUARE:
             return None, None, None, score
         xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
-        if len(xy) < 9 or median(_gaps(xy)) / scale < COARSE_MIN_SQUARE:
+        if len(xy) < 9 or (median(_gaps(xy)) / scale < COARSE_MIN_SQUARE and not any_squares):
             return None, None, None, score
         return xy, values, found, score
 
