@@ -8,7 +8,9 @@ frames each, `--repeat` rounds; we report the median and the 10th/90th percentil
 load disturbs far less. OpenCV's findChessboardCornersSB, given the true board size, runs on the
 same frames for comparison. Cold start (import + session + first detect) is timed in fresh
 processes (median of 5, bytecode cached), and so is peak RSS (a process that detects every frame at
-one size with one detector).
+one size with one detector). Frames without a board run the full-resolution pass: the bundled
+cluttered one (examples/no-board.jpg) is timed at each size with the default detector, without and
+with its fast check (median of --repeat runs).
 
     python benchmarks/latency.py [--models default paper fast] [--repeat 3] [--json out/latency.json]
 """
@@ -110,6 +112,26 @@ def time_opencv(frames: list[np.ndarray], sizes: list[tuple[int, int] | None], r
     return {"total": stats(samples), "found_fraction": found / len(samples)}
 
 
+def time_boardless(threads: int, repeat: int) -> dict:
+    """Median ms of the default detector, without and with its fast check, on the bundled cluttered
+    frame without a board (examples/no-board.jpg) resized to each size: such frames run the
+    full-resolution pass, which the fast check skips."""
+    gray = cv2.imread(str(ROOT / "examples" / "no-board.jpg"), cv2.IMREAD_GRAYSCALE)
+    out = {}
+    for name, fast_check in (("default", False), ("fast check", True)):
+        detector = ccdn.Detector(threads=threads, fast_check=fast_check)
+        for w, h in SIZES:
+            frame = resized(gray, (w, h))
+            detector.detect(frame)  # warm-up
+            times = []
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                detector.detect(frame)
+                times.append((time.perf_counter() - t0) * 1e3)
+            out.setdefault(name, {})[f"{w}x{h}"] = float(np.median(times))
+    return out
+
+
 def _model_arg(name: str) -> str | None:
     """A --models entry as Detector's model argument: 'default' is None (the default detector)."""
     return None if name == "default" else name
@@ -175,6 +197,7 @@ def main(argv: list[str] | None = None) -> None:
         for model in args.models:
             rss = peak_rss_mb(_model_arg(model), (w, h), args.frames, max(args.threads))
             report["peak_rss_mb"].setdefault(model, {})[f"{w}x{h}"] = rss
+    report["boardless_ms"] = time_boardless(max(args.threads), args.repeat)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     print(format_table(report))
@@ -203,6 +226,9 @@ def format_table(report: dict) -> str:
     lines += ratios
     lines += [f"cold start {m} (import + session + first detect of a blank 640x480 frame, median of 5): {v:.0f} ms"
               for m, v in report["cold_start_ms"].items()]
+    lines += [f"boardless frame (examples/no-board.jpg), {name}: "
+              + ", ".join(f"{v:.1f} ms at {size}" for size, v in sizes.items())
+              for name, sizes in report["boardless_ms"].items()]
     lines += [f"peak RSS {m} ({max(r['threads'] for r in report['runs'])} threads, a fresh process detecting every "
               f"frame): " + ", ".join(f"{v:.0f} MB at {size}" for size, v in sizes.items())
               for m, sizes in report["peak_rss_mb"].items()]

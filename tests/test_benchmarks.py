@@ -31,6 +31,9 @@ def test_latency_times_every_stage_at_both_sizes(tmp_path):
         assert 0 < stages["best_total"]["median_ms"] <= stages["total"]["p90_ms"]
         assert stages["network"]["median_ms"] < stages["total"]["median_ms"]
     assert report["cold_start_ms"]["default"] > 0
+    boardless = report["boardless_ms"]
+    assert set(boardless) == {"default", "fast check"}
+    assert all(set(v) == {"640x480", "2000x1500"} and min(v.values()) > 0 for v in boardless.values())
     rss = report["peak_rss_mb"]["default"]
     assert set(rss) == {"640x480", "2000x1500"} and min(rss.values()) > 0
 
