@@ -228,7 +228,9 @@ def test_fast_check_skips_the_full_resolution_pass_when_the_shrunk_passes_find_n
     gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
     frame = np.full_like(gray, int(np.median(gray)))
     frame[150:342, 200:456] = cv2.resize(gray, (256, 192), interpolation=cv2.INTER_AREA)  # ~10 px squares
+    shapes.clear()
     small = detector.detect(frame)
+    assert shapes == [(240, 320, ccdn.models.default_coarse_model())]  # never the full-resolution pass
     assert len(small) == 0 and small.boards == () and small.xy.shape == (0, 2)
     assert len(ccdn.Detector(threads=2).detect(frame)) >= 50
 
