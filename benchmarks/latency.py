@@ -113,22 +113,16 @@ def time_opencv(frames: list[np.ndarray], sizes: list[tuple[int, int] | None], r
 
 
 def time_boardless(threads: int, repeat: int) -> dict:
-    """Median ms of the default detector, without and with its fast check, on the bundled cluttered
-    frame without a board (examples/no-board.jpg) resized to each size: such frames run the
-    full-resolution pass, which the fast check skips."""
+    """Median ms (time_detectors) of the default detector, without and with its fast check, on the
+    bundled cluttered frame without a board (examples/no-board.jpg) resized to each size: such
+    frames run the full-resolution pass, which the fast check skips."""
     gray = cv2.imread(str(ROOT / "examples" / "no-board.jpg"), cv2.IMREAD_GRAYSCALE)
-    out = {}
-    for name, fast_check in (("default", False), ("fast check", True)):
-        detector = ccdn.Detector(threads=threads, fast_check=fast_check)
-        for w, h in SIZES:
-            frame = resized(gray, (w, h))
-            detector.detect(frame)  # warm-up
-            times = []
-            for _ in range(repeat):
-                t0 = time.perf_counter()
-                detector.detect(frame)
-                times.append((time.perf_counter() - t0) * 1e3)
-            out.setdefault(name, {})[f"{w}x{h}"] = float(np.median(times))
+    names = {"default": False, "fast check": True}
+    detectors = [ccdn.Detector(threads=threads, fast_check=check) for check in names.values()]
+    out: dict[str, dict[str, float]] = {name: {} for name in names}
+    for w, h in SIZES:
+        for name, stages in zip(names, time_detectors(detectors, [resized(gray, (w, h))], repeat)):
+            out[name][f"{w}x{h}"] = stages["total"]["median_ms"]
     return out
 
 

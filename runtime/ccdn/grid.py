@@ -535,9 +535,10 @@ def _shorter(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def _square_enough(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(K,) whether the cells spanned by steps u, v (K, 2) are no flatter than a seed square may be."""
-    cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
-    return cross > MIN_SINE * np.hypot(u[:, 0], u[:, 1]) * np.hypot(v[:, 0], v[:, 1])
+    """(...) whether the cells spanned by steps u, v (..., 2) are no flatter than a seed square may
+    be: the sine of the steps' angle above MIN_SINE (seeds and every growth step)."""
+    cross = np.abs(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
+    return cross > MIN_SINE * np.hypot(u[..., 0], u[..., 1]) * np.hypot(v[..., 0], v[..., 1])
 
 
 def _row_col_neighbours(filled: np.ndarray) -> np.ndarray:
@@ -580,7 +581,7 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     u, v = xy[nb[:, i]] - p, xy[nb[:, j]] - p  # (S, P, 2)
     lu, lv = np.linalg.norm(u, axis=2), np.linalg.norm(v, axis=2)
     cross = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
-    ok = (nb_valid[:, i] & nb_valid[:, j] & (np.abs(cross) > MIN_SINE * lu * lv) & (lu < 5 * lv) & (lv < 5 * lu)
+    ok = (nb_valid[:, i] & nb_valid[:, j] & _square_enough(u, v) & (lu < 5 * lv) & (lv < 5 * lu)
           & (np.abs(cross) >= MIN_SQUARE_PX * np.maximum(lu, lv)))
     si, pi = np.nonzero(ok)  # the fourth corner is sought for the plausible pairs only
     flip = cross[si, pi] < 0
