@@ -235,6 +235,21 @@ def test_scaled_dtypes_map_onto_the_uint8_range():
     np.testing.assert_array_equal(to_gray(np.array([[False, True]])), [[0, 255]])
 
 
+def test_uint16_frames_of_a_10_or_12_bit_camera_detect_like_their_8_bit_source(tmp_path, detector, examples):
+    # Mono10 / Mono12 data in 16-bit containers: read as 1/257 of full scale they kept 4-16 grey levels
+    # and lost the board (the fisheye example: 0 corners at 10 bit, 18 of 81 at 12 bit)
+    gray = cv2.imread(str(examples["fisheye"]["path"]), cv2.IMREAD_GRAYSCALE)
+    expected = detector.detect(gray)
+    assert len(expected) == 81
+    for bits in (10, 12):
+        frame = gray.astype(np.uint16) << (bits - 8)
+        assert cv2.imwrite(str(tmp_path / f"mono{bits}.png"), frame)
+        for source in (frame, tmp_path / f"mono{bits}.png"):
+            result = detector.detect(source)
+            assert len(result) == len(expected), (bits, source)
+            assert np.abs(np.sort(result.xy, 0) - np.sort(expected.xy, 0)).max() < 0.05
+
+
 def test_detector_refuses_bad_arrays_with_a_message(detector):
     cases = [
         (np.zeros((8, 8), np.int32), "unsupported dtype int32"),

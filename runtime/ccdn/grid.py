@@ -74,6 +74,7 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -107,6 +108,8 @@ NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's
 _PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
 # the pairs (quad_differences' columns) that leave each quad out
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
+_ROTATIONS = (((1, 0), (0, 1)), ((0, -1), (1, 0)), ((-1, 0), (0, -1)), ((0, 1), (-1, 0)))  # the 4 proper
+# rotations of grid indices, (new_row, new_col) = M (row, col)
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
 _NEARBY = sorted(((i, j) for i in range(-3, 4) for j in range(-3, 4)), key=lambda q: (abs(q[0]) + abs(q[1]), q))
 _REACH = 4  # a position's prediction and axes use filled positions up to this many steps away
@@ -673,28 +676,31 @@ def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int
         steps = xy[neighbour[has]] - xy[has]
         return (steps / np.linalg.norm(steps, axis=1, keepdims=True)).mean(0)
 
-    col_dir, row_dir = mean_step(0, 1), mean_step(1, 0)
-    # the 4 proper rotations (new_r, new_c) of (r, c), with the image directions of +col and +row
-    rotations = [(lambda r, c: (r, c), col_dir, row_dir), (lambda r, c: (-c, r), row_dir, -col_dir),
-                 (lambda r, c: (-r, -c), -col_dir, -row_dir), (lambda r, c: (c, -r), -row_dir, col_dir)]
+    col_dir, row_dir = mean_step(0, 1).tolist(), mean_step(1, 0).tolist()
+    (r_min, c_min), (r_max, c_max) = grid.min(0).tolist(), grid.max(0).tolist()
+    extremes = ((r_min, c_min), (r_max, c_max))
     ref_light = sign > 0  # the quad between internal corners (0, 0) and (1, 1) has even parity
     best, best_key = None, None
-    for rotate, new_col, new_row in rotations:
-        r, c = rotate(grid[:, 0], grid[:, 1])
-        r0, c0 = r.min(), c.min()
-        cols, rows = int(c.max() - c0 + 1), int(r.max() - r0 + 1)
+    for (a, b), (c, d) in _ROTATIONS:  # scalar arithmetic: a handful of numbers per rotation
+        rs, cs = [a * r + b * q for r, q in extremes], [c * r + d * q for r, q in extremes]
+        r0, c0 = min(rs), min(cs)
+        n_rows, n_cols = max(rs) - r0 + 1, max(cs) - c0 + 1
         if board_size is not None:
             bc, br = board_size
-            fits = (cols, rows) == (bc, br) or (allow_partial and cols <= bc and rows <= br)
+            fits = (n_cols, n_rows) == (bc, br) or (allow_partial and n_cols <= bc and n_rows <= br)
             if not fits:
                 continue
-        qr, qc = rotate(np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]))
-        origin_light = ((qr.min() - r0 + qc.min() - c0) % 2 == 0) == ref_light
-        horizontal = abs(new_col[0]) / np.linalg.norm(new_col) >= abs(new_row[0]) / np.linalg.norm(new_row)
+        # the quad (0, 0)-(1, 1) rotated: its new top-left corner's parity relative to the new origin
+        origin_light = ((min(0, a, b, a + b) - r0 + min(0, c, d, c + d) - c0) % 2 == 0) == ref_light
+        # the image directions of the new +col and +row: (r, c) = M^T (new_r, new_c)
+        new_col = (c * row_dir[0] + d * col_dir[0], c * row_dir[1] + d * col_dir[1])
+        new_row = (a * row_dir[0] + b * col_dir[0], a * row_dir[1] + b * col_dir[1])
+        horizontal = abs(new_col[0]) / math.hypot(*new_col) >= abs(new_row[0]) / math.hypot(*new_row)
         axis_rank = 0 if (board_size is not None and board_size[0] != board_size[1]) or horizontal else 1
         key = (axis_rank, not origin_light, new_col[0] <= 0)
         if best_key is None or key < best_key:
-            best, best_key = np.stack([r - r0, c - c0], 1), key
+            best_key = key
+            best = np.stack([a * grid[:, 0] + b * grid[:, 1] - r0, c * grid[:, 0] + d * grid[:, 1] - c0], 1)
     return best
 
 

@@ -2,13 +2,16 @@
 
 Arrays: HxW gray, HxWx1, HxWx2 (gray + alpha), HxWx3 (BGR, OpenCV order) or HxWx4 (BGRA); any
 memory layout (non-contiguous views and either byte order are copied as needed). dtypes: uint8 as
-is; uint16 scaled by 1/257; float in [0, 1] scaled by 255 and clipped (NaN or infinity refused);
-bool as 0/255. Other dtypes (signed or wider integers, complex, object) are refused.
+is; uint16 read as b-bit data, b the bits its largest value needs (at least 8), and scaled by
+255 / (2^b - 1): a 10-, 12- or 14-bit camera's frames in 16-bit containers (Mono10/12/14 saved as
+16-bit PNG or TIFF) get the whole grey range, full-range 16-bit data 1/257 (scaled by 1/257 alone,
+a 12-bit frame kept 16 grey levels and lost its board); float in [0, 1] scaled by 255 and clipped
+(NaN or infinity refused); bool as 0/255. Other dtypes (signed or wider integers, complex, object) are refused.
 
 Files are decoded by OpenCV (EXIF orientation applied) and then converted as arrays are, so an
 8-bit file gives exactly the result of its `cv2.imread` array. Converted, not refused: colour,
-palette, gray + alpha and RGBA images (alpha is dropped, not composited), 16-bit (scaled by 1/257)
-and float images (clipped to [0, 1]). Before the pixels are decoded, the size is read from the
+palette, gray + alpha and RGBA images (alpha is dropped, not composited), 16-bit (scaled as
+above) and float images (clipped to [0, 1]). Before the pixels are decoded, the size is read from the
 header (PNG, JPEG, BMP, GIF, WebP, TIFF, PNM), so an image over `max_pixels` is refused without
 allocating it; other formats are checked after decoding. A JPEG without its end marker is refused
 as truncated (older OpenCV would fill the missing part with gray). Any size down to 1x1 is valid.
@@ -111,7 +114,8 @@ def _to_uint8(image: np.ndarray, source: str) -> np.ndarray:
     if image.dtype == np.uint8:
         return image
     if image.dtype == np.uint16:
-        return cv2.convertScaleAbs(np.ascontiguousarray(image), alpha=1 / 257)  # round(v / 257), no wide copy
+        bits = max(8, int(image.max()).bit_length())  # the sensor's bit depth, as far as the pixels tell
+        return cv2.convertScaleAbs(np.ascontiguousarray(image), alpha=255 / ((1 << bits) - 1))  # rounds; no wide copy
     if np.issubdtype(image.dtype, np.floating):
         if not np.isfinite(image).all():
             raise ImageError(f"{source}: float image contains NaN or infinity")

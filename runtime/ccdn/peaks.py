@@ -59,19 +59,19 @@ def suppress(xy: np.ndarray, radius: float) -> np.ndarray:
     b = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(lo, counts)
     i, j = by_x[a], by_x[b]
     close = (i < j) & (((pts[i] - pts[j]) ** 2).sum(1) <= radius * radius)  # i stronger than j
+    # greedy in score order, settled in rounds (as many as the longest chain of close points, usually
+    # 1-3): a point is kept once all its stronger neighbours are suppressed, suppressed once one is kept
     i, j = i[close], j[close]
-    keep = np.ones(n, bool)
-    if len(j) == 0:
-        return keep
-    order = np.argsort(j, kind="stable")
-    i, j = i[order], j[order]
-    starts = np.searchsorted(j, np.arange(n))
-    ends = np.searchsorted(j, np.arange(n), "right")
-    distinct = j[np.flatnonzero(np.diff(j, prepend=-1))]  # j is sorted (np.unique would import numpy.ma)
-    for point in distinct:  # in score order: each point's stronger neighbours are settled first
-        if keep[i[starts[point] : ends[point]]].any():
-            keep[point] = False
-    return keep
+    state = np.zeros(n, np.int8)  # 0 undecided, 1 kept, -1 suppressed
+    while True:
+        blocked = np.zeros(n, bool)
+        blocked[j[state[i] != -1]] = True
+        state[(state == 0) & ~blocked] = 1
+        beaten = np.zeros(n, bool)
+        beaten[j[state[i] == 1]] = True
+        state[(state == 0) & beaten] = -1
+        if (state != 0).all():
+            return state == 1
 
 
 def kmeans_outliers(xy: np.ndarray, k: int = 10, min_size: int = 3, seed: int = 0, iterations: int = 50) -> np.ndarray:
