@@ -184,7 +184,8 @@ def any_array(draw):
     shape = draw(hnp.array_shapes(min_dims=0, max_dims=4, min_side=0, max_side=6))
     elements = None
     if dtype.kind == "f":
-        elements = st.floats(-2, 2, width=dtype.itemsize * 8) | st.sampled_from([np.nan, np.inf, -np.inf])
+        width = dtype.itemsize * 8  # [0, 1] data with overshoots, 0-255 data (refused), NaN and infinities
+        elements = st.floats(-2, 2, width=width) | st.floats(-2, 300, width=width) | st.sampled_from([np.nan, np.inf, -np.inf])
     array = draw(hnp.arrays(dtype, shape, elements=elements))
     view = draw(st.sampled_from(["as is", "step", "reverse", "transpose"]))
     if array.ndim >= 2 and view == "step":
@@ -202,7 +203,8 @@ def any_array(draw):
 def test_any_array_becomes_contiguous_gray_uint8_or_image_error(array):
     usable_shape = array.ndim == 2 or (array.ndim == 3 and 1 <= array.shape[2] <= 4)
     usable_dtype = array.dtype.kind in "bf" or array.dtype.newbyteorder("=") in (np.uint8, np.uint16)
-    usable = usable_shape and array.size > 0 and usable_dtype and (array.dtype.kind != "f" or np.isfinite(array).all())
+    usable = usable_shape and array.size > 0 and usable_dtype and (
+        array.dtype.kind != "f" or (np.isfinite(array).all() and array.max() <= image_module.FLOAT_MAX))
     try:
         gray = to_gray(array)
     except ImageError as exc:
@@ -231,7 +233,7 @@ def test_scaled_dtypes_map_onto_the_uint8_range():
     np.testing.assert_array_equal(to_gray(values.astype(np.uint16) * 257), values)
     np.testing.assert_array_equal(to_gray((values.astype(np.uint16) * 257).astype(">u2")), values)
     np.testing.assert_array_equal(to_gray(values / 255.0), values)
-    np.testing.assert_array_equal(to_gray(np.array([[-3.0, 7.0]])), [[0, 255]])  # floats are clipped to [0, 1]
+    np.testing.assert_array_equal(to_gray(np.array([[-3.0, 1.5]])), [[0, 255]])  # floats are clipped to [0, 1]
     np.testing.assert_array_equal(to_gray(np.array([[False, True]])), [[0, 255]])
 
 
@@ -248,6 +250,13 @@ def test_uint16_frames_of_a_10_or_12_bit_camera_detect_like_their_8_bit_source(t
             result = detector.detect(source)
             assert len(result) == len(expected), (bits, source)
             assert np.abs(np.sort(result.xy, 0) - np.sort(expected.xy, 0)).max() < 0.05
+
+
+def test_float_frames_in_the_0_255_range_are_refused_not_blanked(detector, examples):
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    assert len(detector.detect(gray.astype(np.float32) / 255)) == 54
+    with pytest.raises(ImageError, match=r"array: float image values reach 2\d\d; floats must lie in \[0, 1\]"):
+        detector.detect(gray.astype(np.float32))  # clipped to [0, 1] it was a blank frame: 0 corners, no error
 
 
 def test_detector_refuses_bad_arrays_with_a_message(detector):

@@ -6,7 +6,8 @@ is; uint16 read as b-bit data, b the bits its largest value needs (at least 8), 
 255 / (2^b - 1): a 10-, 12- or 14-bit camera's frames in 16-bit containers (Mono10/12/14 saved as
 16-bit PNG or TIFF) get the whole grey range, full-range 16-bit data 1/257 (scaled by 1/257 alone,
 a 12-bit frame kept 16 grey levels and lost its board); float in [0, 1] scaled by 255 and clipped
-(NaN or infinity refused); bool as 0/255. Other dtypes (signed or wider integers, complex, object) are refused.
+(NaN, infinity and values above FLOAT_MAX refused: 0-255 data passed as floats would be a blank
+frame, silently); bool as 0/255. Other dtypes (signed or wider integers, complex, object) are refused.
 
 Files are decoded by OpenCV (EXIF orientation applied) and then converted as arrays are, so an
 8-bit file gives exactly the result of its `cv2.imread` array. Converted, not refused: colour,
@@ -31,6 +32,7 @@ import cv2
 import numpy as np
 
 DEFAULT_MAX_PIXELS = 100_000_000
+FLOAT_MAX = 2.0  # float images above this are refused: [0, 1] data that overshoots a little is clipped
 HEADER_BYTES = 64 * 1024  # enough for every probed header except JPEGs with big APP segments (seeked)
 JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
 
@@ -119,6 +121,10 @@ def _to_uint8(image: np.ndarray, source: str) -> np.ndarray:
     if np.issubdtype(image.dtype, np.floating):
         if not np.isfinite(image).all():
             raise ImageError(f"{source}: float image contains NaN or infinity")
+        top = float(image.max())
+        if top > FLOAT_MAX:  # 0-255 (or 0-65535) data as floats: clipped to [0, 1], it would be a blank frame
+            raise ImageError(f"{source}: float image values reach {top:g}; floats must lie in [0, 1] "
+                             "(divide by 255, or pass uint8)")
         return (np.clip(image, 0.0, 1.0).astype(np.float32) * 255 + 0.5).astype(np.uint8)
     if image.dtype == np.bool_:
         return image.astype(np.uint8) * 255
