@@ -17,6 +17,7 @@ from hypothesis.extra import numpy as hnp
 
 from ccdn import image as image_module
 from ccdn.image import ImageError, probe_header, read_gray, to_gray
+from conftest import nearest_distances
 from imagefiles import checkerboard, encode, png_bytes
 
 ENCODINGS = [(".png", []), (".jpg", []), (".jpg", [cv2.IMWRITE_JPEG_PROGRESSIVE, 1]), (".bmp", []), (".tif", []),
@@ -185,7 +186,8 @@ def any_array(draw):
     elements = None
     if dtype.kind == "f":
         width = dtype.itemsize * 8  # [0, 1] data with overshoots, 0-255 data (refused), NaN and infinities
-        elements = st.floats(-2, 2, width=width) | st.floats(-2, 300, width=width) | st.sampled_from([np.nan, np.inf, -np.inf])
+        elements = (st.floats(-2, 2, width=width) | st.floats(-2, 300, width=width)
+                    | st.sampled_from([np.nan, np.inf, -np.inf]))
     array = draw(hnp.arrays(dtype, shape, elements=elements))
     view = draw(st.sampled_from(["as is", "step", "reverse", "transpose"]))
     if array.ndim >= 2 and view == "step":
@@ -249,7 +251,16 @@ def test_uint16_frames_of_a_10_or_12_bit_camera_detect_like_their_8_bit_source(t
         for source in (frame, tmp_path / f"mono{bits}.png"):
             result = detector.detect(source)
             assert len(result) == len(expected), (bits, source)
-            assert np.abs(np.sort(result.xy, 0) - np.sort(expected.xy, 0)).max() < 0.05
+            assert nearest_distances(result.xy, expected.xy.astype(np.float64)).max() < 0.05
+
+
+def test_the_alpha_channel_does_not_set_a_16_bit_frames_bit_depth():
+    gray = np.array([[0, 1023, 512]], np.uint16)  # 10-bit data
+    opaque = np.full_like(gray, 65535)
+    expected = to_gray(gray)
+    np.testing.assert_array_equal(expected, [[0, 255, 128]])
+    np.testing.assert_array_equal(to_gray(np.dstack([gray, opaque])), expected)
+    np.testing.assert_array_equal(to_gray(np.dstack([gray, gray, gray, opaque])), expected)
 
 
 def test_float_frames_in_the_0_255_range_are_refused_not_blanked(detector, examples):

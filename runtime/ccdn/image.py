@@ -2,7 +2,7 @@
 
 Arrays: HxW gray, HxWx1, HxWx2 (gray + alpha), HxWx3 (BGR, OpenCV order) or HxWx4 (BGRA); any
 memory layout (non-contiguous views and either byte order are copied as needed). dtypes: uint8 as
-is; uint16 read as b-bit data, b the bits its largest value needs (at least 8), and scaled by
+is; uint16 read as b-bit data, b the bits its largest colour value needs (at least 8), and scaled by
 255 / (2^b - 1): a 10-, 12- or 14-bit camera's frames in 16-bit containers (Mono10/12/14 saved as
 16-bit PNG or TIFF) get the whole grey range, full-range 16-bit data 1/257 (scaled by 1/257 alone,
 a 12-bit frame kept 16 grey levels and lost its board); float in [0, 1] scaled by 255 and clipped
@@ -116,7 +116,8 @@ def _to_uint8(image: np.ndarray, source: str) -> np.ndarray:
     if image.dtype == np.uint8:
         return image
     if image.dtype == np.uint16:
-        bits = max(8, int(image.max()).bit_length())  # the sensor's bit depth, as far as the pixels tell
+        colour = image[..., :-1] if image.ndim == 3 and image.shape[2] in (2, 4) else image  # alpha: any range
+        bits = max(8, int(colour.max()).bit_length())  # the sensor's bit depth, as far as the pixels tell
         return cv2.convertScaleAbs(np.ascontiguousarray(image), alpha=255 / ((1 << bits) - 1))  # rounds; no wide copy
     if np.issubdtype(image.dtype, np.floating):
         if not np.isfinite(image).all():
