@@ -22,6 +22,19 @@ def examples() -> dict[str, dict]:
 
 
 @pytest.fixture(scope="session")
+def small_board(examples) -> dict:
+    """The bundled board shrunk to 256x192 px (squares ~10 px: too small for a halved 640x480 frame)
+    on a plain 640x480 frame: {"frame", "corners" (N, 2)}."""
+    import cv2
+
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    frame = np.full_like(gray, int(np.median(gray)))
+    frame[150:342, 200:456] = cv2.resize(gray, (256, 192), interpolation=cv2.INTER_AREA)
+    frame.setflags(write=False)
+    return {"frame": frame, "corners": (examples["board"]["corners"] + 0.5) * 0.4 - 0.5 + [200, 150]}
+
+
+@pytest.fixture(scope="session")
 def real_dev() -> list[dict]:
     if not (REAL_DEV / "labels.json").is_file():
         pytest.skip("../shared/data/real-dev is absent")

@@ -180,12 +180,8 @@ def test_shrunk_frames_are_halvings_that_map_onto_the_frame_like_a_direct_area_m
         assert np.abs(level.astype(int) - direct).max() <= 2  # rounding at each halving only
 
 
-def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(examples):
-    import cv2
-
-    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
-    frame = np.full_like(gray, int(np.median(gray)))
-    frame[150:342, 200:456] = cv2.resize(gray, (256, 192), interpolation=cv2.INTER_AREA)  # ~10 px squares
+def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(small_board):
+    frame = small_board["frame"]
     detector = ccdn.Detector(threads=2)
     shapes = _network_frames(detector)
     coarse = detector.detect(frame)
@@ -213,21 +209,17 @@ def test_a_frame_without_a_board_runs_the_full_resolution_pass_only_where_the_ha
     assert 0 < sum(h * w for h, w, _ in shapes[1:]) <= (120 + 2 * 12 + 16) * (160 + 2 * 12 + 16)  # patch, halo, margin
 
 
-def test_fast_check_skips_the_full_resolution_pass_when_the_shrunk_passes_find_no_board(examples):
+def test_fast_check_skips_the_full_resolution_pass_when_the_shrunk_passes_find_no_board(examples, small_board):
     """Like OpenCV's CALIB_CB_FAST_CHECK: a frame without a board costs the halved pass only, a
     board with big squares is found as without the check, and one with squares too small for the
     halved frame is the price (the default finds it on the full frame)."""
-    import cv2
-
     detector = ccdn.Detector(threads=2, fast_check=True)
     shapes = _network_frames(detector)
     assert len(detector.detect(examples["no-board"]["path"])) == 0
     assert shapes == [(240, 320, ccdn.models.default_coarse_model())]
     big = detector.detect(examples["board"]["path"])
     assert np.array_equal(big.xy, ccdn.Detector(threads=2).detect(examples["board"]["path"]).xy) and len(big) == 54
-    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
-    frame = np.full_like(gray, int(np.median(gray)))
-    frame[150:342, 200:456] = cv2.resize(gray, (256, 192), interpolation=cv2.INTER_AREA)  # ~10 px squares
+    frame = small_board["frame"]
     shapes.clear()
     small = detector.detect(frame)
     assert shapes == [(240, 320, ccdn.models.default_coarse_model())]  # never the full-resolution pass

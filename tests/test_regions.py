@@ -15,11 +15,8 @@ def _inside(xy: np.ndarray, boxes) -> np.ndarray:
     return np.any([(top <= row) & (row < bottom) & (left <= col) & (col < right) for top, bottom, left, right in boxes], 0)
 
 
-def test_boxes_hold_every_corner_of_a_board_too_small_for_the_halved_frame(examples):
-    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
-    frame = np.full_like(gray, int(np.median(gray)))
-    frame[150:342, 200:456] = cv2.resize(gray, (256, 192), interpolation=cv2.INTER_AREA)  # ~10 px squares
-    corners = (examples["board"]["corners"] + 0.5) * 0.4 - 0.5 + [200, 150]
+def test_boxes_hold_every_corner_of_a_board_too_small_for_the_halved_frame(small_board):
+    frame, corners = small_board["frame"], small_board["corners"]
     halved = cv2.resize(frame, (320, 240), interpolation=cv2.INTER_AREA)
     score = ccdn.Detector("fast", threads=2)._session.scores(halved)
     boxes = look_boxes(score, 2, frame.shape)
