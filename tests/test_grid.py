@@ -446,3 +446,21 @@ def test_a_board_with_marks_in_its_corner_squares_still_seeds(dotted):
         assert find_boards(image, scene.corners, np.ones(len(scene.corners))) == ()  # strict seeds only
     else:
         assert boards == ()
+
+
+def test_a_board_does_not_wander_off_its_lattice_where_its_lines_would_turn_sharply():
+    """On the sliver of a board tilted 60-75 degrees the network also scores the tips where two
+    squares of one colour nearly touch, and growth, each step within its tolerance, wandered from the
+    true lattice onto theirs: the stress set's extreme-pose render 7100011 gave one board of 57
+    corners, 23 of them tips 2.8-5 px from any true corner, its rows turning by up to 100 degrees.
+    Lines may turn no more than ccdn.grid.MAX_TURN: what is left is the true lattice, indexed as it is."""
+    import ccdn
+    from conftest import calm_scene
+
+    scene = calm_scene(7_100_011, square_px=(15.0, 60.0), min_tilt_deg=60.0, max_tilt_deg=75.0)
+    (board,) = ccdn.Detector(threads=2).detect(scene.image).boards
+    distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+    true = distance.min(1) < 1.0
+    assert true.sum() >= 20 and (~true).sum() <= 2
+    kept = Board(board.corner_index[true], board.grid[true], board.xy[true], board.cols, board.rows)
+    assert index_map(kept, scene.grid[distance[true].argmin(1)]) is not None

@@ -24,7 +24,11 @@ shorter local lattice step is taken if it passes the image test. No corner is ta
 local steps are flatter than a seed's may be (the sine of their angle at most MIN_SINE, in every
 growth step): on the slivers of boards tilted 60-75 degrees the tips where two squares of one colour
 nearly touch score like corners, and a lattice of such tips passed the image test (a stress render:
-16 of a board's 25 corners 2-4 px off). When nothing more can be added,
+16 of a board's 25 corners 2-4 px off). Nor do these rounds or completion take one that turns a
+row or column sharply at it or its neighbours (GROWTH_TURN); once grown, corners are dropped until
+no line turns by more than MAX_TURN (_Grower.unkink): perspective keeps lines straight, lens
+distortion bends them gently, and tips so scored let growth wander off the true lattice one
+tolerated step at a time. When nothing more can be added,
 growth may jump over one missing position along a row or column (a hole, not the end of the
 board). Corners left with fewer than two row/column neighbours are then dropped (lone points on the
 outline), and so is an outermost row or column that is a stub of the line inside it (at most 0.3 of
@@ -93,6 +97,9 @@ SEED_CHUNK = 256  # seeds checked at once
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 TOLERANCE = 0.3  # of the shorter local lattice step
 MIN_SINE = 0.3  # of the angle between the lattice steps: flatter cells are too sheared to sample
+MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sharper turn is a wrong corner ...
+KINK_PX = 2.0  # ... where it also moves the shorter step's end this far (on small squares the corners' own error turns steps)
+GROWTH_TURN = 20.0  # growth's own limit, looser: a wrong corner taken first must not keep out the true one
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
 RELATIVE_CONTRAST = 0.2  # of the seed's median contrast
 SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's diagonals) from their centres:
@@ -120,6 +127,8 @@ _AXES_C = np.array([[dc + q[1] for _, dc in _AXES_SHIFTS for q in _NEARBY]])
 CANVAS_START = 16  # a new canvas holds this many cells each way from its seed (padding it costs more than its size)
 CANVAS_MARGIN = 8  # empty grid cells kept around a growing board: lookups from the frontier (or a
 # position beyond a hole, 2 cells out) reach 3 + 2 cells further, and must stay on the canvas
+_AROUND_R = np.array([[0] * 5 + [-2, -1, 0, 1, 2]])  # a cell's row, then its column, 2 cells each way
+_AROUND_C = np.array([[-2, -1, 0, 1, 2] + [0] * 5])
 _PRED_R = np.array([[k * dr for k in (1, 2, 3) for dr, _ in _DIRECTIONS]
                     + [dr for dr, _ in _DIAGONALS] + [0] * 4 + [dr for dr, _ in _DIAGONALS]])
 _PRED_C = np.array([[k * dc for k in (1, 2, 3) for _, dc in _DIRECTIONS]
@@ -285,16 +294,26 @@ class _Grower:
             ok &= (low > 0.4 * typical) & (spread < 0.5 * typical)
         return ok
 
+    def _straight(self, cells: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(K,) whether corners at points in canvas cells (K, 2) keep the grid's lines straight: no
+        row or column turning by more than GROWTH_TURN at them or at their neighbours (_bends)."""
+        near = self._gather(cells[:, 0:1] + _AROUND_R, cells[:, 1:2] + _AROUND_C)  # (K, 2 x 5, 2)
+        near[:, [2, 7]] = points[:, None]
+        steps = np.diff(near.reshape(-1, 5, 2), axis=1)  # the corner's row, then its column, it at 2
+        turns = _bends(steps[:, :-1], steps[:, 1:], math.cos(math.radians(GROWTH_TURN)))
+        return ~turns.reshape(len(cells), 6).any(1)
+
     def _frontier(self) -> np.ndarray:
         """Empty canvas cells next to a filled one along a row or column, (K, 2)."""
         filled = self.idx >= 0
         return np.argwhere((_row_col_neighbours(filled) > 0) & ~filled)
 
     def _match(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray, u: np.ndarray,
-               v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               v: np.ndarray, local: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """For cells, the free corners nearest their predictions that pass the image test with
-        lattice steps u, v (one corner per cell, the nearest cell wins a contested corner): which
-        cells (indices into cells) and their corners."""
+        lattice steps u, v (one corner per cell, the nearest cell wins a contested corner) and, for
+        local predictions (not a homography's), keep the grid's lines straight: which cells (indices
+        into cells) and their corners."""
         none = np.zeros(0, np.int64)
         free = np.nonzero(self.free)[0]
         if len(free) == 0 or len(cells) == 0:
@@ -306,6 +325,8 @@ class _Grower:
         if len(ok) == 0:
             return none, none
         ok = ok[self._accepts(cells[ok], self.xy[free[nearest[ok]]], u[ok], v[ok])]
+        if local:
+            ok = ok[self._straight(cells[ok], self.xy[free[nearest[ok]]])]
         ok = ok[np.argsort(dist[ok], kind="stable")]
         ok = ok[np.unique(nearest[ok], return_index=True)[1]]  # a corner goes to its nearest cell
         return ok, free[nearest[ok]]
@@ -352,7 +373,7 @@ class _Grower:
             if len(cells) == 0:
                 return
             preds, u, v = _project_with_steps(homography, (cells - self.origin)[:, ::-1].astype(np.float64))
-            ok, corners = self._match(cells, preds, TOLERANCE * _shorter(u, v), u, v)
+            ok, corners = self._match(cells, preds, TOLERANCE * _shorter(u, v), u, v, False)
             if len(ok) == 0:
                 return
             mask = (self.idx >= 0).astype(np.uint8)
@@ -390,6 +411,7 @@ class _Grower:
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
         good[good] &= self._accepts(cells[good], points[good], u[good], v[good], True, COMPLETION_MIN_PAIRS)
+        good[good] &= self._straight(cells[good], points[good])
         taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
         if len(taken):
             good &= np.linalg.norm(points[:, None] - taken[None], axis=2).min(1) >= tol
@@ -453,6 +475,35 @@ class _Grower:
         first = np.sort(_first_of_each_cell(targets, self.idx.shape[1]))
         targets = targets[first]
         return bool(self._take(targets, preds[first], tols[first], *self._axes(targets)).any())
+
+    def unkink(self) -> None:
+        """Drop corners until no row or column turns by more than MAX_TURN degrees between consecutive
+        steps (_bends). Perspective keeps a board's lines straight and lens distortion bends them
+        gently (stress renders: about 10 degrees at most, where the turn moves a step's end by KINK_PX);
+        growth's tolerance lets a line bend a little at each step, and on a board's sliver, where
+        the network scores the tips at which two squares of one colour nearly touch, growth wandered
+        off the true lattice onto theirs (a stress render: 23 of a board's 57 corners such tips,
+        its lines turning by up to 100 degrees). Growth takes no corner that would turn a line by
+        more than GROWTH_TURN (_straight: looser, since the first corner taken is not always the
+        right one); this settles what is left, what a homography's round took and what corners
+        added in one round do together. Each round drops, of the corners in such turns, the one
+        farthest from its prediction by the others (_predict), relative to the local lattice step."""
+        limit = math.cos(math.radians(MAX_TURN))
+        while True:
+            bad = np.zeros(self.idx.shape, bool)
+            for pos, mark in ((self.pos, bad), (self.pos.transpose(1, 0, 2), bad.T)):  # along rows, columns
+                turn = _bends(pos[:, 1:-1] - pos[:, :-2], pos[:, 2:] - pos[:, 1:-1], limit)
+                mark[:, :-2] |= turn
+                mark[:, 1:-1] |= turn
+                mark[:, 2:] |= turn
+            suspects = np.argwhere(bad)
+            if len(suspects) == 0:
+                return
+            off = np.linalg.norm(self.pos[suspects[:, 0], suspects[:, 1]] - self._predict(suspects), axis=1)
+            off = np.nan_to_num(off / _shorter(*self._axes(suspects)), nan=np.inf)  # unpredictable: first
+            worst = suspects[off.argmax()]
+            self.idx[worst[0], worst[1]] = -1
+            self.pos[worst[0], worst[1]] = np.nan
 
     def prune(self) -> None:
         """Drop corners with fewer than 2 row/column neighbours: lone points on a board's outline.
@@ -542,6 +593,17 @@ def _square_enough(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     be: the sine of the steps' angle above MIN_SINE (seeds and every growth step)."""
     cross = np.abs(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
     return cross > MIN_SINE * np.hypot(u[..., 0], u[..., 1]) * np.hypot(v[..., 0], v[..., 1])
+
+
+def _bends(a: np.ndarray, b: np.ndarray, cos_limit: float) -> np.ndarray:
+    """(...) whether steps a and b (..., 2) differ in direction by more than the angle of cos_limit
+    and by more than KINK_PX where the shorter of them ends (2 sin(angle / 2) x its length): on
+    squares a few pixels wide the corners' own error turns steps by up to 30 degrees. NaN steps (empty
+    cells): False."""
+    la, lb = np.hypot(a[..., 0], a[..., 1]), np.hypot(b[..., 0], b[..., 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = (a * b).sum(-1) / (la * lb)
+        return (cos < cos_limit) & (np.minimum(la, lb) ** 2 * (2 - 2 * cos) > KINK_PX**2)
 
 
 def _row_col_neighbours(filled: np.ndarray) -> np.ndarray:
@@ -654,6 +716,7 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     grower = _Grower(xy, free, sampler, gray, len(xy) + len(added), occupied)
     grower.seed(square[1], float(square[2]), float(square[3]))
     grower.grow()
+    grower.unkink()
     grower.prune()
     grower.trim_outline()
     grid, idx = grower.cells()
