@@ -479,7 +479,7 @@ class _Grower:
     def unkink(self) -> None:
         """Drop corners until no row or column turns by more than MAX_TURN degrees between consecutive
         steps (_bends). Perspective keeps a board's lines straight and lens distortion bends them
-        gently (stress renders: about 10 degrees at most, where the turn moves a step's end by KINK_PX);
+        gently (1120 stress renders: 13 degrees at most, where the turn moves a step's end by KINK_PX);
         growth's tolerance lets a line bend a little at each step, and on a board's sliver, where
         the network scores the tips at which two squares of one colour nearly touch, growth wandered
         off the true lattice onto theirs (a stress render: 23 of a board's 57 corners such tips,
