@@ -50,7 +50,13 @@ level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local latti
 to a centre that is off the image) and all four edge-adjacent quad pairs must differ with the
 board's sign (fixed at its seed: quads with even row + col are all dark or all light), their median
 by at least a fifth of the seed's contrast and the weakest by 0.15 of the strongest. This rejects
-false corners and points on the board's outline (where two outside quads are alike). An occluder
+false corners and points on the board's outline (where two outside quads are alike). The quads
+must also be uniform where a seed's are sampled (SEED_REACH_UNIFORM, SEED_AXES; their samples may
+vary by at most WIDE_SPREAD x the contrast) at a corner with another detected one closer than
+CROWDED x the shorter step, i.e. inside its cells: there a sublattice of another board passed, its
+quad centres on square centres (steps (2, 1) and (-1, 2) of its squares; in a stress render a board
+of 45 px squares grew onto 16 corners of its 21 px-square neighbour), and so did tips near a steep
+board's corners. An occluder
 (or another board) over one quad's centre fails that test at a corner the image still shows: a
 corner the network proposed that fails it gets a second chance where the three other quads' pairs
 pass and the four quads alternate close to the corner, sampled 0.36 of the way to their centres,
@@ -107,6 +113,8 @@ SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's
 SEED_AXES = 0.3  # ... and this far along each lattice step: a grid of thin lines passes the diagonal samples
 FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ring-at-once growth
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
+WIDE_SPREAD = 1.5  # growth's image test: quads sampled as widely as a seed's vary by at most this x their contrast ...
+CROWDED = 0.75  # ... at a corner with another this close (x the shorter lattice step): other corners in its cells
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
 COMPLETION_MIN_PAIRS = 2  # quad pairs on the image a completed corner needs: one pair alone, at the frame's edge,
 # is an edge (a board's outline there took indices: held-out stress renders 3 false positives fewer, 2 corners
@@ -161,8 +169,9 @@ class _Grower:
     """Grows one board from a seed square over the free corners."""
 
     def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.ndarray | None = None,
-                 first_added: int = 0, occupied: np.ndarray | None = None) -> None:
+                 first_added: int = 0, occupied: np.ndarray | None = None, gaps: np.ndarray | None = None) -> None:
         self.xy, self.free, self.sampler = xy, free.copy(), sampler
+        self.gaps = gaps  # each corner's distance to the nearest other one (None: unknown, every one is crowded)
         self.gray = gray  # given: complete the grid from the image (module docstring)
         self.occupied = np.zeros((0, 2)) if occupied is None else occupied  # earlier boards' corners
         self.first_added = first_added  # index of this grower's first added corner
@@ -260,12 +269,14 @@ class _Grower:
         return nanmedian_rows(np.concatenate([line, diagonal], 1))
 
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
-                 strict: bool = False, min_pairs: int = 1) -> np.ndarray:
+                 strict: bool = False, min_pairs: int = 1, crowded: np.ndarray | None = None) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
         image are not counted; steps flatter than a seed's fail: MIN_SINE); strict (for corners the
         network did not propose): also the seed's test of even contrast and uniform quads, which
         points on a board's outline next to clutter fail, with at least min_pairs of the 4 quad
-        pairs on the image; without it, a point that fails gets the module docstring's second chance."""
+        pairs on the image; without it, a point that fails gets the module docstring's second chance,
+        and the crowded points (K,) bool (None: all) must have quads uniform where a seed's are
+        sampled (WIDE_SPREAD) to pass without it."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         square = _square_enough(u, v)
@@ -282,7 +293,12 @@ class _Grower:
         far, near = diffs[:k], diffs[k:]
         three_quads = (np.fmin.reduce(far[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
         second_chance = three_quads & self._alternate(near, spread[k:], True)
-        return (self._alternate(far, spread[:k], False) | second_chance) & square
+        plain = self._alternate(far, spread[:k], False)
+        wide = plain if crowded is None else plain & crowded
+        if wide.any():  # quads uniform where a seed's are sampled (a NaN contrast does not refuse)
+            diffs, spread = quad_differences(self.sampler, points[wide], u[wide], v[wide], SEED_REACH_UNIFORM, SEED_AXES)
+            plain[wide] = ~(spread > WIDE_SPREAD * np.abs(nanmedian_rows(diffs)))
+        return (plain | second_chance) & square
 
     def _alternate(self, diffs: np.ndarray, spread: np.ndarray, strict: bool) -> np.ndarray:
         """(K,) whether quad pair differences diffs (K, 4), in the board's sign, alternate enough;
@@ -324,7 +340,9 @@ class _Grower:
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
         if len(ok) == 0:
             return none, none
-        ok = ok[self._accepts(cells[ok], self.xy[free[nearest[ok]]], u[ok], v[ok])]
+        corners = free[nearest[ok]]
+        crowded = None if self.gaps is None else self.gaps[corners] < CROWDED * _shorter(u[ok], v[ok])
+        ok = ok[self._accepts(cells[ok], self.xy[corners], u[ok], v[ok], crowded=crowded)]
         if local:
             ok = ok[self._straight(cells[ok], self.xy[free[nearest[ok]]])]
         ok = ok[np.argsort(dist[ok], kind="stable")]
@@ -708,12 +726,13 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
 
 
 def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.ndarray | None, added: list,
-                square: list) -> _Grower | None:
+                square: list, gaps: np.ndarray) -> _Grower | None:
     """The board grown from a verified seed square (_seed_squares' found, corners, sign, contrast) over
-    the free corners (gray given: with completion; `added`: corners earlier boards completed), pruned and
-    trimmed; None when it is smaller than MIN_CORNERS or MIN_EXTENT."""
+    the free corners (gray given: with completion; `added`: corners earlier boards completed; gaps: each
+    corner's distance to its nearest), pruned and trimmed; None when it is smaller than MIN_CORNERS or
+    MIN_EXTENT."""
     occupied = np.concatenate([xy[~free], np.reshape(added, (-1, 2))])
-    grower = _Grower(xy, free, sampler, gray, len(xy) + len(added), occupied)
+    grower = _Grower(xy, free, sampler, gray, len(xy) + len(added), occupied, gaps)
     grower.seed(square[1], float(square[2]), float(square[3]))
     grower.grow()
     grower.unkink()
@@ -813,8 +832,9 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
         return ()
     sampler = Sampler(gray)
     neighbours, dist2 = nearest_neighbours(xy, SEED_REACH)
+    gaps = np.sqrt(dist2[:, 0])
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
-    corner_like = x_like(gray, xy, np.sqrt(dist2[:, 0]))[order]
+    corner_like = x_like(gray, xy, gaps)[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
     free = np.ones(n, bool)
     found, added = [], []
@@ -835,7 +855,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in _seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
                                                             uneven)]
-            grower = _grow_board(xy, free, sampler, gray if complete else None, added, square) if square[0] else None
+            grower = (_grow_board(xy, free, sampler, gray if complete else None, added, square, gaps) if square[0]
+                      else None)
             if grower is None:
                 continue
             grid, idx = grower.cells()
