@@ -296,8 +296,9 @@ class _Grower:
         plain = self._alternate(far, spread[:k], False)
         wide = plain if crowded is None else plain & crowded
         if wide.any():  # quads uniform where a seed's are sampled (a NaN contrast does not refuse)
-            diffs, spread = quad_differences(self.sampler, points[wide], u[wide], v[wide], SEED_REACH_UNIFORM, SEED_AXES)
-            plain[wide] = ~(spread > WIDE_SPREAD * np.abs(nanmedian_rows(diffs)))
+            wide_diffs, wide_spread = quad_differences(self.sampler, points[wide], u[wide], v[wide], SEED_REACH_UNIFORM,
+                                                       SEED_AXES)
+            plain[wide] = ~(wide_spread > WIDE_SPREAD * np.abs(nanmedian_rows(wide_diffs)))
         return (plain | second_chance) & square
 
     def _alternate(self, diffs: np.ndarray, spread: np.ndarray, strict: bool) -> np.ndarray:
