@@ -58,6 +58,10 @@ def nearest_distances(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.linalg.norm(truth[:, None] - found[None].astype(np.float64), axis=2).min(1)
 
 
+EXTREME_POSE = dict(square_px=(15.0, 60.0), min_tilt_deg=60.0, max_tilt_deg=75.0)  # calm_scene changes that
+# render benchmarks/stress.py's extreme-pose subset (seeds 7_100_000 on)
+
+
 def calm_scene(seed: int, **changes):
     """A render of one board without lens, blur, noise or lighting effects (ccdn_training.synth),
     with `changes` to its SceneConfig."""

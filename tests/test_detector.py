@@ -285,14 +285,13 @@ def test_a_board_is_not_grown_into_cells_flatter_than_a_seed_square():
     on the stress set's extreme-pose render 7100021, 16 of a 25-corner board's corners lay 2-4 px
     from every true corner. A steep board whose cells stay above that (render 7100050, sines down to
     0.45) is still found whole."""
-    from conftest import calm_scene
+    from conftest import EXTREME_POSE, calm_scene
 
     detector = ccdn.Detector(threads=2)
-    steep = dict(square_px=(15.0, 60.0), min_tilt_deg=60.0, max_tilt_deg=75.0)  # the stress set's extreme pose
-    sliver = calm_scene(7_100_021, **steep)
+    sliver = calm_scene(7_100_021, **EXTREME_POSE)
     found = detector.detect(sliver.image).xy
     assert (nearest_distances(sliver.corners, found) < 1.5).all()  # every corner found is a true one
-    board = calm_scene(7_100_050, **steep)
+    board = calm_scene(7_100_050, **EXTREME_POSE)
     found = detector.detect(board.image).xy
     assert (nearest_distances(found, board.corners) < 1.5).all()  # every true corner found
     assert (nearest_distances(board.corners, found) < 1.5).all()

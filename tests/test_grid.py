@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ccdn.checker import Sampler
-from ccdn.grid import Board, _Grower, find_boards
+from ccdn.grid import Board, _Grower, find_boards, nearest_neighbours
 
 synth = pytest.importorskip("ccdn_training.synth")
 
@@ -51,6 +51,14 @@ def index_map(board: Board, true_grid: np.ndarray) -> np.ndarray | None:
         if (offset == offset[0]).all():
             return rot
     return None
+
+
+def true_part(board: Board, scene: synth.Scene) -> tuple[Board, np.ndarray]:
+    """The board's corners within 1 px of a true corner, as a Board, and those true corners' indices."""
+    distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+    true = distance.min(1) < 1.0
+    kept = Board(board.corner_index[true], board.grid[true], board.xy[true], board.cols, board.rows)
+    return kept, distance[true].argmin(1)
 
 
 def largest_matching(boards: tuple[Board, ...], wanted: np.ndarray) -> Board:
@@ -188,7 +196,7 @@ def test_a_flat_board_grows_ring_at_once_from_its_seed_square():
     """Before any local round, the homography growth alone fills a flat board (the speed-up)."""
     for scene in whole_boards(2, board_sizes=((9, 6),), max_tilt_deg=35.0):
         xy = scene.corners.astype(np.float64)
-        grower = _Grower(xy, np.ones(len(xy), bool), Sampler(scene.image))
+        grower = _Grower(xy, np.ones(len(xy), bool), Sampler(scene.image), np.sqrt(nearest_neighbours(xy, 1)[1][:, 0]))
         at = {(int(r), int(c)): k for k, (r, c) in enumerate(scene.grid)}
         square = [at[(2, 3)], at[(2, 4)], at[(3, 3)], at[(3, 4)]]
         (ux, uy), (vx, vy) = xy[square[1]] - xy[square[0]], xy[square[2]] - xy[square[0]]
@@ -455,15 +463,13 @@ def test_a_board_does_not_wander_off_its_lattice_where_its_lines_would_turn_shar
     corners, 23 of them tips 2.8-5 px from any true corner, its rows turning by up to 100 degrees.
     Lines may turn no more than ccdn.grid.MAX_TURN: what is left is the true lattice, indexed as it is."""
     import ccdn
-    from conftest import calm_scene
+    from conftest import EXTREME_POSE, calm_scene
 
-    scene = calm_scene(7_100_011, square_px=(15.0, 60.0), min_tilt_deg=60.0, max_tilt_deg=75.0)
+    scene = calm_scene(7_100_011, **EXTREME_POSE)
     (board,) = ccdn.Detector(threads=2).detect(scene.image).boards
-    distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
-    true = distance.min(1) < 1.0
-    assert true.sum() >= 20 and (~true).sum() <= 2
-    kept = Board(board.corner_index[true], board.grid[true], board.xy[true], board.cols, board.rows)
-    assert index_map(kept, scene.grid[distance[true].argmin(1)]) is not None
+    kept, label = true_part(board, scene)
+    assert len(kept) >= 20 and len(board) - len(kept) <= 2
+    assert index_map(kept, scene.grid[label]) is not None
 
 
 @pytest.mark.parametrize("seed", [7_120_744, 7_120_467])
@@ -481,9 +487,6 @@ def test_a_board_does_not_take_corners_of_the_board_beside_it(seed):
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert len(boards) == 2
     for board in boards:
-        distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
-        true = distance.min(1) < 1.0
-        label = distance[true].argmin(1)
-        assert true.all() and len(set(scene.board_index[label])) == 1
-        kept = Board(board.corner_index[true], board.grid[true], board.xy[true], board.cols, board.rows)
+        kept, label = true_part(board, scene)
+        assert len(kept) == len(board) and len(set(scene.board_index[label])) == 1
         assert index_map(kept, scene.grid[label]) is not None

@@ -168,10 +168,10 @@ class Board:
 class _Grower:
     """Grows one board from a seed square over the free corners."""
 
-    def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.ndarray | None = None,
-                 first_added: int = 0, occupied: np.ndarray | None = None, gaps: np.ndarray | None = None) -> None:
+    def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler, gaps: np.ndarray,
+                 gray: np.ndarray | None = None, first_added: int = 0, occupied: np.ndarray | None = None) -> None:
         self.xy, self.free, self.sampler = xy, free.copy(), sampler
-        self.gaps = gaps  # each corner's distance to the nearest other one (None: unknown, every one is crowded)
+        self.gaps = gaps  # each corner's distance to the nearest other one (find_boards' nearest_neighbours)
         self.gray = gray  # given: complete the grid from the image (module docstring)
         self.occupied = np.zeros((0, 2)) if occupied is None else occupied  # earlier boards' corners
         self.first_added = first_added  # index of this grower's first added corner
@@ -275,8 +275,8 @@ class _Grower:
         network did not propose): also the seed's test of even contrast and uniform quads, which
         points on a board's outline next to clutter fail, with at least min_pairs of the 4 quad
         pairs on the image; without it, a point that fails gets the module docstring's second chance,
-        and the crowded points (K,) bool (None: all) must have quads uniform where a seed's are
-        sampled (WIDE_SPREAD) to pass without it."""
+        and the crowded points ((K,) bool, given without strict) must have quads uniform where a
+        seed's are sampled (WIDE_SPREAD) to pass without it."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         square = _square_enough(u, v)
@@ -294,7 +294,7 @@ class _Grower:
         three_quads = (np.fmin.reduce(far[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
         second_chance = three_quads & self._alternate(near, spread[k:], True)
         plain = self._alternate(far, spread[:k], False)
-        wide = plain if crowded is None else plain & crowded
+        wide = plain & crowded
         if wide.any():  # quads uniform where a seed's are sampled (a NaN contrast does not refuse)
             wide_diffs, wide_spread = quad_differences(self.sampler, points[wide], u[wide], v[wide], SEED_REACH_UNIFORM,
                                                        SEED_AXES)
@@ -341,14 +341,14 @@ class _Grower:
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
         if len(ok) == 0:
             return none, none
-        corners = free[nearest[ok]]
-        crowded = None if self.gaps is None else self.gaps[corners] < CROWDED * _shorter(u[ok], v[ok])
-        ok = ok[self._accepts(cells[ok], self.xy[corners], u[ok], v[ok], crowded=crowded)]
+        candidate = free[nearest]  # each cell's nearest free corner
+        crowded = self.gaps[candidate[ok]] < CROWDED * _shorter(u[ok], v[ok])
+        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok], crowded=crowded)]
         if local:
-            ok = ok[self._straight(cells[ok], self.xy[free[nearest[ok]]])]
+            ok = ok[self._straight(cells[ok], self.xy[candidate[ok]])]
         ok = ok[np.argsort(dist[ok], kind="stable")]
         ok = ok[np.unique(nearest[ok], return_index=True)[1]]  # a corner goes to its nearest cell
-        return ok, free[nearest[ok]]
+        return ok, candidate[ok]
 
     def _take(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray, u: np.ndarray,
               v: np.ndarray) -> np.ndarray:
@@ -733,7 +733,7 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     corner's distance to its nearest), pruned and trimmed; None when it is smaller than MIN_CORNERS or
     MIN_EXTENT."""
     occupied = np.concatenate([xy[~free], np.reshape(added, (-1, 2))])
-    grower = _Grower(xy, free, sampler, gray, len(xy) + len(added), occupied, gaps)
+    grower = _Grower(xy, free, sampler, gaps, gray, len(xy) + len(added), occupied)
     grower.seed(square[1], float(square[2]), float(square[3]))
     grower.grow()
     grower.unkink()
