@@ -43,19 +43,15 @@ class Sampler:
         return np.where(inside, total / ((x1 - x0) * (y1 - y0)), np.nan)
 
 
-def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, reach: float = 0.125,
-                     axes: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Grey-level contrast and uniformity of the 4 quads around corners p (K, 2), lattice steps u, v.
-
-    Returns (diffs, spread): diffs (K, 4) is own-parity minus other-parity quad (each the median of
-    5 samples: centre and centre +- reach (u +- v); with axes > 0 also centre +- axes u and +- axes v,
-    9 in all) over the 4 edge-adjacent pairs (the quad at
-    +u/2 +v/2 shares the corner's row + col parity), positive when the corner's own-parity quads are
-    light; spread (K,) is the largest range of the samples within one quad, small when they sit
-    inside squares, large when a wrong lattice puts them on edges or in other squares (a larger
-    reach tells more lattices apart, a smaller one tolerates more distortion; the axis samples catch
-    a grid of thin lines, whose crossings look like dark quads along the lines' directions only). A
-    quad centre off the image is sampled halfway to it.
+def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, reach: float = 0.125,
+                axes: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Grey levels of the 4 quads around corners p (K, 2), lattice steps u, v: each quad's median,
+    lowest and highest sample, (4, K) each, quads +u+v, +u-v, -u+v, -u-v (the first shares the
+    corner's row + col parity). A quad is sampled at its centre and centre +- reach (u +- v); with
+    axes > 0 also at centre +- axes u and +- axes v, 9 samples in all (a larger reach tells more
+    lattices apart, a smaller one tolerates more distortion; the axis samples catch a grid of thin
+    lines, whose crossings look like dark quads along the lines' directions only). A quad centre off
+    the image is sampled halfway to it; samples off the image are NaN.
     """
     p = np.atleast_2d(p)
     if u.shape != p.shape or v.shape != p.shape:  # broadcast_to's cost shows on these small calls
@@ -75,10 +71,30 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     if off.any():
         centre[off] = (p[None] + step / 4)[off]
     samples = sampler.mean(centre[:, None] + offsets[None], radius)  # (4 quads, S samples, K)
-    # fmax / fmin skip NaN samples (off the image) without nanmax's warnings; all-NaN stays NaN
-    spread = np.fmax.reduce(np.fmax.reduce(samples, 1) - np.fmin.reduce(samples, 1), 0)
-    quads = np.sort(samples, axis=1)[:, n // 2]  # the median sample of each quad, (4, K)
-    return (quads[QUAD_PAIRS[:, 0]] - quads[QUAD_PAIRS[:, 1]]).T, spread
+    # fmin / fmax skip NaN samples (off the image) without nanmax's warnings; all-NaN stays NaN
+    return np.sort(samples, axis=1)[:, n // 2], np.fmin.reduce(samples, 1), np.fmax.reduce(samples, 1)
+
+
+def pair_differences(median: np.ndarray) -> np.ndarray:
+    """(K, 4): own-parity minus other-parity quad over the 4 edge-adjacent pairs (QUAD_PAIRS) of
+    quad levels (4, K) (quad_levels' medians, or any function of them that keeps their order),
+    positive when the corner's own-parity quads are light."""
+    return (median[QUAD_PAIRS[:, 0]] - median[QUAD_PAIRS[:, 1]]).T
+
+
+def quad_spread(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """(K,): the largest range of the samples within one quad (quad_levels' low and high, (4, K)),
+    small when they sit inside squares, large when a wrong lattice puts them on edges or in other
+    squares."""
+    return np.fmax.reduce(high - low, 0)
+
+
+def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, reach: float = 0.125,
+                     axes: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The grey-level contrast and uniformity of the quads around corners p (quad_levels):
+    (pair_differences (K, 4), quad_spread (K,))."""
+    median, low, high = quad_levels(sampler, p, u, v, reach, axes)
+    return pair_differences(median), quad_spread(low, high)
 
 
 # the quads +u+v, +u-v, -u+v, -u-v (0..3): their signs of u and v, (4 quads, 1, 2, 1), and the edge-adjacent

@@ -38,9 +38,10 @@ the search repeats for further boards. Corners in no board are dropped. Local pr
 tolerant of perspective and strong radial/fisheye distortion.
 
 Completion (complete=True): where no given corner lies near a predicted position, the image itself
-is asked: where the image test, made as strict as the seed's, passes at the prediction, a saddle
-point is fitted there (ccdn.refine, within the same tolerance) and taken if it passes the ring test
-and the strict image test, with at least two of its quad pairs on the image (one pair alone, at the
+is asked: where the image test, made as strict as the seed's (its evenness and uniformity on the
+log scale below), passes at the prediction, a saddle point is fitted there (ccdn.refine, within the
+same tolerance) and taken if it passes the ring test and the strict image test, with at least two
+of its quad pairs on the image (one pair alone, at the
 frame's edge, is what a board's outline shows too). This recovers the corners the network scored
 too low (shadowed, blurred, or first found on a downscaled frame); such corners get indices >=
 len(xy), in order of addition.
@@ -49,8 +50,11 @@ Image test: at a checker corner the four squares around it alternate dark/light.
 level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
 to a centre that is off the image) and all four edge-adjacent quad pairs must differ with the
 board's sign (fixed at its seed: quads with even row + col are all dark or all light), their median
-by at least a fifth of the seed's contrast and the weakest by 0.15 of the strongest. This rejects
-false corners and points on the board's outline (where two outside quads are alike). The quads
+by at least 0.05 of the seed's contrast (a board's part in deep shade keeps a fifth to a twentieth
+of it) and the weakest by 0.15 of the strongest, on a log scale of grey (SHADE_OFFSET): a shadow
+multiplies grey levels, and where its edge crosses a corner two quads darken, which evened out the
+weakest pair on the grey scale but not that ratio. This rejects false corners and points on the
+board's outline (where two outside quads are alike; alike on either scale). The quads
 must also be uniform where a seed's are sampled (SEED_REACH_UNIFORM, SEED_AXES; their samples may
 vary by at most WIDE_SPREAD x the contrast) at a corner with another detected one closer than
 CROWDED x the shorter step, i.e. inside its cells: there a sublattice of another board passed, its
@@ -91,7 +95,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from .checker import MIN_CONTRAST, QUAD_PAIRS, Sampler, quad_differences, x_like
+from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, pair_differences, quad_differences, quad_levels, quad_spread,
+                      x_like)
 from .refine import refine_saddle_points, window_for_spacing
 from .stats import median, nanmedian_rows
 
@@ -107,12 +112,16 @@ MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sh
 KINK_PX = 2.0  # ... where it also moves the shorter step's end this far (small squares' corner error turns steps)
 GROWTH_TURN = 20.0  # growth's own limit, looser: a wrong corner taken first must not keep out the true one
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
-RELATIVE_CONTRAST = 0.2  # of the seed's median contrast
+RELATIVE_CONTRAST = 0.05  # of the seed's median contrast: a board's shaded part keeps a twentieth of its lit
+# part's contrast (stress shadow renders, 0.2 before: 12.2 -> 10.5 % missed; every other render the same)
 SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's diagonals) from their centres:
 # a basis (u, v + 2u) passes the colour test like (u, v), but its quads reach into other squares
 SEED_AXES = 0.3  # ... and this far along each lattice step: a grid of thin lines passes the diagonal samples
 FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ring-at-once growth
-PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner (a board outline has a ~0 pair)
+PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner, on the log scale (a board outline has a ~0 pair)
+SHADE_OFFSET = 8.0  # grey levels: PAIR_RATIO and the strict test's evenness and uniformity are judged on
+# log(grey + this), where shading, which multiplies grey levels, cancels out; the offset is a black square's
+# noise floor, below which the log would magnify noise (measured 3 / 8 / 20: the same within 5 corners of 3800)
 WIDE_SPREAD = 1.5  # growth's image test: quads sampled as widely as a seed's vary by at most this x their contrast ...
 CROWDED = 0.75  # ... at a corner with another this close (x the shorter lattice step): other corners in its cells
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
@@ -272,8 +281,8 @@ class _Grower:
                  strict: bool = False, min_pairs: int = 1, crowded: np.ndarray | None = None) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
         image are not counted; steps flatter than a seed's fail: MIN_SINE); strict (for corners the
-        network did not propose): also the seed's test of even contrast and uniform quads, which
-        points on a board's outline next to clutter fail, with at least min_pairs of the 4 quad
+        network did not propose): also the seed's test of even contrast and uniform quads (here
+        on the log scale: _alternate), which points on a board's outline next to clutter fail, with at least min_pairs of the 4 quad
         pairs on the image; without it, a point that fails gets the module docstring's second chance,
         and the crowded points ((K,) bool, given without strict) must have quads uniform where a
         seed's are sampled (WIDE_SPREAD) to pass without it."""
@@ -281,34 +290,46 @@ class _Grower:
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         square = _square_enough(u, v)
         if strict:  # the strict test (completion's corners, prune's lone ones) gets no second chance
-            diffs, spread = quad_differences(self.sampler, points, u, v)
-            on_image = np.isfinite(diffs).sum(1) >= min_pairs
-            return self._alternate(diffs * sign[:, None], spread, strict) & on_image & square
+            levels = quad_levels(self.sampler, points, u, v)
+            on_image = np.isfinite(pair_differences(levels[0])).sum(1) >= min_pairs
+            return self._alternate(levels, sign, strict) & on_image & square
         # the second chance (module docstring), sampled in the same call: one quad may be hidden,
         # the corner's surroundings may not
         k = len(points)
-        diffs, spread = quad_differences(self.sampler, np.concatenate([points, points]),
-                                         np.concatenate([u, NEAR_QUADS * u]), np.concatenate([v, NEAR_QUADS * v]))
-        diffs *= np.tile(sign, 2)[:, None]
-        far, near = diffs[:k], diffs[k:]
-        three_quads = (np.fmin.reduce(far[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
-        second_chance = three_quads & self._alternate(near, spread[k:], True)
-        plain = self._alternate(far, spread[:k], False)
+        levels = quad_levels(self.sampler, np.concatenate([points, points]), np.concatenate([u, NEAR_QUADS * u]),
+                             np.concatenate([v, NEAR_QUADS * v]))
+        far = tuple(part[:, :k] for part in levels)
+        plain = self._alternate(far, sign, False)
         wide = plain & crowded
         if wide.any():  # quads uniform where a seed's are sampled (a NaN contrast does not refuse)
             wide_diffs, wide_spread = quad_differences(self.sampler, points[wide], u[wide], v[wide], SEED_REACH_UNIFORM,
                                                        SEED_AXES)
             plain[wide] = ~(wide_spread > WIDE_SPREAD * np.abs(nanmedian_rows(wide_diffs)))
-        return (plain | second_chance) & square
+        far_diffs = pair_differences(far[0]) * sign[:, None]
+        retry = ~plain & (np.fmin.reduce(far_diffs[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
+        if retry.any():  # the second chance, for the points with three quads that failed the plain test
+            near = tuple(part[:, k:][:, retry] for part in levels)
+            plain[retry] = self._alternate(near, sign[retry], True)
+        return plain & square
 
-    def _alternate(self, diffs: np.ndarray, spread: np.ndarray, strict: bool) -> np.ndarray:
-        """(K,) whether quad pair differences diffs (K, 4), in the board's sign, alternate enough;
-        strict: also evenly, with uniform quads (spread (K,))."""
+    def _alternate(self, levels: tuple[np.ndarray, ...], sign: np.ndarray, strict: bool) -> np.ndarray:
+        """(K,) whether the quads (quad_levels) alternate in the board's sign (K,) of each corner:
+        their median pair by the board's threshold and their weakest pair by MIN_CONTRAST and, on
+        the log scale (SHADE_OFFSET), by PAIR_RATIO of the strongest; strict: also evenly (the
+        weakest pair at least 0.4 of the median) with uniform quads (their samples' range under
+        half the median), both on the log scale, so that a shadow across the corner, which
+        darkens two of its quads, does not fail it."""
+        median, low, high = levels
+        diffs = pair_differences(median) * sign[:, None]
         typical = nanmedian_rows(diffs)  # NaN where every quad pair is off the image: then not ok
-        low, high = np.fmin.reduce(diffs, 1), np.fmax.reduce(diffs, 1)  # over the pairs on the image
-        ok = (typical > self.threshold) & (low > np.maximum(MIN_CONTRAST, PAIR_RATIO * high))
+        log_diffs = pair_differences(np.log(median + SHADE_OFFSET)) * sign[:, None]
+        log_low = np.fmin.reduce(log_diffs, 1)  # over the pairs on the image
+        ok = ((typical > self.threshold) & (np.fmin.reduce(diffs, 1) > MIN_CONTRAST)
+              & (log_low > PAIR_RATIO * np.fmax.reduce(log_diffs, 1)))
         if strict:
-            ok &= (low > 0.4 * typical) & (spread < 0.5 * typical)
+            log_typical = nanmedian_rows(log_diffs)
+            log_spread = quad_spread(np.log(low + SHADE_OFFSET), np.log(high + SHADE_OFFSET))
+            ok &= (log_low > 0.4 * log_typical) & (log_spread < 0.5 * log_typical)
         return ok
 
     def _straight(self, cells: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -65,6 +65,7 @@ class SceneConfig:
     p_dark: float = 0.1
     p_glare: float = 0.15
     p_shadow: float = 0.2
+    shadow_depth: tuple[float, float] = (0.3, 0.75)  # share of the light a shadow takes away
     board_sizes: list[tuple[int, int]] | None = None  # None: paper sizes and 3..15 random
 
 
@@ -268,7 +269,7 @@ def _blur_and_light(img: np.ndarray, rng: np.random.Generator, cfg: SceneConfig)
         mask = np.zeros((h, w), np.float32)
         cv2.fillPoly(mask, [pts], 1.0)
         mask = cv2.GaussianBlur(mask, (0, 0), rng.uniform(1, 15))
-        img = img * (1 - mask * rng.uniform(0.3, 0.75))
+        img = img * (1 - mask * rng.uniform(*cfg.shadow_depth))
     if rng.random() < cfg.p_glare:
         yy, xx = np.mgrid[0:h, 0:w]
         c = rng.random(2) * [w, h]
