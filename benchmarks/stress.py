@@ -4,9 +4,9 @@ Every subset starts from a calm scene (one board, squares 15-60 px, tilt <= 40 d
 noise, JPEG or lighting effects, dark-on-light) and forces one condition on, at full strength:
 fisheye, strong barrel distortion, motion blur, defocus, heavy noise, low contrast, darkness, glare,
 small squares (6-10 px), extreme pose (tilt 60-75 deg), inverted intensity, two boards, partial boards
-(large squares running off the frame), occluders, no board, a deep shadow (a polygon taking 80-95 % of the light,
-its edge blurred 1-15 px: a board half in shade, the lit part up to 20x the contrast of the rest). Blur kernels and glare keep the renderer's
-own ranges (motion 3-9 px, defocus radius 1-3 px).
+(large squares running off the frame), occluders, no board, a deep shadow (a polygon taking 80-95 %
+of the light, its edge blurred 1-15 px: the lit part of a board 5-20x the contrast of its shaded
+part). Blur kernels and glare keep the renderer's own ranges (motion 3-9 px, defocus radius 1-3 px).
 
 A render joins its subset only if it shows that condition and no other (`shows_condition`): the board
 wholly in frame (its outer squares too, as OpenCV needs) with every inner corner countable; except that

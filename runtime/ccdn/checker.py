@@ -75,11 +75,11 @@ def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, r
     return np.sort(samples, axis=1)[:, n // 2], np.fmin.reduce(samples, 1), np.fmax.reduce(samples, 1)
 
 
-def pair_differences(median: np.ndarray) -> np.ndarray:
+def pair_differences(levels: np.ndarray) -> np.ndarray:
     """(K, 4): own-parity minus other-parity quad over the 4 edge-adjacent pairs (QUAD_PAIRS) of
     quad levels (4, K) (quad_levels' medians, or any function of them that keeps their order),
     positive when the corner's own-parity quads are light."""
-    return (median[QUAD_PAIRS[:, 0]] - median[QUAD_PAIRS[:, 1]]).T
+    return (levels[QUAD_PAIRS[:, 0]] - levels[QUAD_PAIRS[:, 1]]).T
 
 
 def quad_spread(low: np.ndarray, high: np.ndarray) -> np.ndarray:

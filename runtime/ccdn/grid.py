@@ -112,8 +112,8 @@ MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sh
 KINK_PX = 2.0  # ... where it also moves the shorter step's end this far (small squares' corner error turns steps)
 GROWTH_TURN = 20.0  # growth's own limit, looser: a wrong corner taken first must not keep out the true one
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
-RELATIVE_CONTRAST = 0.05  # of the seed's median contrast: a board's shaded part keeps a twentieth of its lit
-# part's contrast (stress shadow renders, 0.2 before: 12.2 -> 10.5 % missed; every other render the same)
+RELATIVE_CONTRAST = 0.05  # of the seed's median contrast: a board's part in deep shade keeps a fifth to a
+# twentieth of its lit part's (stress shadow renders, 0.2 before: 12.2 -> 10.5 % missed; every other render the same)
 SEED_REACH_UNIFORM = 0.25  # the seed's quads are sampled this far (x the quad's diagonals) from their centres:
 # a basis (u, v + 2u) passes the colour test like (u, v), but its quads reach into other squares
 SEED_AXES = 0.3  # ... and this far along each lattice step: a grid of thin lines passes the diagonal samples
@@ -281,11 +281,11 @@ class _Grower:
                  strict: bool = False, min_pairs: int = 1, crowded: np.ndarray | None = None) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
         image are not counted; steps flatter than a seed's fail: MIN_SINE); strict (for corners the
-        network did not propose): also the seed's test of even contrast and uniform quads (here
-        on the log scale: _alternate), which points on a board's outline next to clutter fail, with at least min_pairs of the 4 quad
-        pairs on the image; without it, a point that fails gets the module docstring's second chance,
-        and the crowded points ((K,) bool, given without strict) must have quads uniform where a
-        seed's are sampled (WIDE_SPREAD) to pass without it."""
+        network did not propose): also the seed's test of even contrast and uniform quads (here on
+        the log scale: _alternate), which points on a board's outline next to clutter fail, with at
+        least min_pairs of the 4 quad pairs on the image; without it, a point that fails gets the
+        module docstring's second chance, and the crowded points ((K,) bool, given without strict)
+        must have quads uniform where a seed's are sampled (WIDE_SPREAD) to pass without it."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         square = _square_enough(u, v)
@@ -319,10 +319,10 @@ class _Grower:
         weakest pair at least 0.4 of the median) with uniform quads (their samples' range under
         half the median), both on the log scale, so that a shadow across the corner, which
         darkens two of its quads, does not fail it."""
-        median, low, high = levels
-        diffs = pair_differences(median) * sign[:, None]
+        middle, low, high = levels
+        diffs = pair_differences(middle) * sign[:, None]
         typical = nanmedian_rows(diffs)  # NaN where every quad pair is off the image: then not ok
-        log_diffs = pair_differences(np.log(median + SHADE_OFFSET)) * sign[:, None]
+        log_diffs = pair_differences(np.log(middle + SHADE_OFFSET)) * sign[:, None]
         log_low = np.fmin.reduce(log_diffs, 1)  # over the pairs on the image
         ok = ((typical > self.threshold) & (np.fmin.reduce(diffs, 1) > MIN_CONTRAST)
               & (log_low > PAIR_RATIO * np.fmax.reduce(log_diffs, 1)))
