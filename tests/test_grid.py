@@ -511,3 +511,20 @@ def test_a_board_half_in_deep_shadow_is_one_board(seed, detected):
     assert index_map(board, scene.grid[board.corner_index]) is not None
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(found.boards) == 1 and len(found.boards[0]) >= detected
+
+
+def test_where_the_frame_cuts_a_board_its_outline_gives_no_corner():
+    """Where the frame's edge cuts a board's outline, the one quad pair left on the image alternates
+    like a corner's: the stress set's partial render 7130009 had a board corner 0.2 px from the edge
+    and 49 px from any true corner (and real-dev photos rotated by 90 degrees, a board one column too
+    wide). Corners closer than ccdn.grid.EDGE_MARGIN to the frame's edge join no board (the renders'
+    labels leave them out too): every corner found is a true one."""
+    import ccdn
+    from conftest import calm_scene
+
+    scene = calm_scene(7_130_009, square_px=(45.0, 110.0), max_tilt_deg=40.0)  # the stress set's partial render
+    h, w = scene.image.shape
+    found = ccdn.Detector(threads=2).detect(scene.image).xy
+    assert len(found) >= 20
+    assert (found >= 1.5).all() and (found <= [w - 2.5, h - 2.5]).all()
+    assert (np.linalg.norm(found[:, None] - scene.corners[None], axis=2).min(1) < 1.0).all()

@@ -34,8 +34,10 @@ board). Corners left with fewer than two row/column neighbours are then dropped 
 outline), and so is an outermost row or column that is a stub of the line inside it (at most 0.3 of
 its length) unless the frame cuts it (clutter continuing the pattern beyond an edge). A grid of at
 least 3 x 3 positions and 8 corners is a board; its corners are removed and
-the search repeats for further boards. Corners in no board are dropped. Local predictions make this
-tolerant of perspective and strong radial/fisheye distortion.
+the search repeats for further boards. Corners in no board are dropped, and no corner closer than
+EDGE_MARGIN to the frame's edge joins one (where the frame cuts a board's outline, its one visible
+quad pair alternates like a corner's). Local predictions make this tolerant of perspective and
+strong radial/fisheye distortion.
 
 Completion (complete=True): where no given corner lies near a predicted position, the image itself
 is asked: where the image test, made as strict as the seed's (its evenness and uniformity on the
@@ -128,6 +130,9 @@ OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is
 COMPLETION_MIN_PAIRS = 2  # quad pairs on the image a completed corner needs: one pair alone, at the frame's edge,
 # is an edge (a board's outline there took indices: held-out stress renders 3 false positives fewer, 2 corners
 # 1.5-2 px from the frame's edge fewer; the benchmark's renders 2 such corners fewer)
+EDGE_MARGIN = 1.5  # px: a corner closer to the frame's edge joins no board: the renders' labels leave such
+# corners out too (ccdn_training.synth), their saddle window is mostly off the frame, and where the frame's edge
+# cuts a board's outline, its one visible quad pair passes the image test like a corner's
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
 _PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
 # the pairs (quad_differences' columns) that leave each quad out
@@ -450,6 +455,7 @@ class _Grower:
         points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
+        good &= _inside(points, self.gray.shape)
         good[good] &= self._accepts(cells[good], points[good], u[good], v[good], True, COMPLETION_MIN_PAIRS)
         good[good] &= self._straight(cells[good], points[good])
         taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
@@ -621,6 +627,12 @@ def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     i.setflags(write=False)
     j.setflags(write=False)
     return i, j
+
+
+def _inside(xy: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """(N,) whether points xy (N, 2) lie at least EDGE_MARGIN px inside a frame of `shape` (H, W)."""
+    h, w = shape[:2]
+    return ((xy >= EDGE_MARGIN) & (xy <= np.array([w - 1, h - 1]) - EDGE_MARGIN)).all(1)
 
 
 def _shorter(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -858,7 +870,7 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     corner_like = x_like(gray, xy, gaps)[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
-    free = np.ones(n, bool)
+    free = _inside(xy, gray.shape)  # corners at the frame's edge are in no board
     found, added = [], []
     # strict seed squares first; squares with uneven corners only among the seeds left when they are done
     # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less)
