@@ -198,10 +198,15 @@ def main(argv: list[str] | None = None) -> None:
                         "filter": args.filter, "coarse_to_fine": not args.no_coarse, "fast_check": args.fast_check,
                         "match_radius_px": MATCH_RADIUS, "seed": args.seed,
                         "machine": cpu_name(), "seconds": round(time.time() - t0, 1)}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=1))
+    write_report(result, args.json)
+
+
+def write_report(result: dict, path: Path) -> None:
+    """Write an evaluation's result as JSON to path and print its groups' table."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=1))
     print(format_table(result["groups"]))
-    print(f"written {args.json}")
+    print(f"written {path}")
 
 
 if __name__ == "__main__":

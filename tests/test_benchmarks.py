@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import REAL_DEV
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,3 +58,14 @@ def test_accuracy_reports_the_paper_metrics_per_group(tmp_path):
     group = report["groups"]["synthetic"]
     assert group["labels"] == sum(row["labels"] for row in rendered) > 0
     assert abs(group["missed_pct"] - 100 * sum(row["missed"] for row in rendered) / group["labels"]) < 1e-9
+
+
+@pytest.mark.skipif(not (REAL_DEV / "labels.json").is_file(), reason="../shared/data/real-dev not present")
+def test_perturbed_moves_the_labels_with_the_photo(tmp_path):
+    report = _run("perturbed.py", tmp_path / "perturbed.json", "--limit", "2", "--perturbations", "identity", "rot90",
+                  "half")
+    groups = report["groups"]
+    assert list(groups) == ["identity", "rot90", "half"]
+    for group in groups.values():  # labels rotated or halved with the photo still meet the corners
+        assert group["images"] == 2 and group["labels"] == groups["identity"]["labels"] > 0
+        assert group["missed_pct"] < 5 and group["boards_recovered"] == 2 and group["accuracy_px"] < 0.3
