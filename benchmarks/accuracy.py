@@ -120,6 +120,15 @@ def board_recovered(result: ccdn.Detection, labels: np.ndarray, cols: int, rows:
     return same_indexing(board.grid[hit], true)
 
 
+def photo_counts(result: ccdn.Detection, labels: np.ndarray, sizes: list[tuple[int, int]]) -> dict:
+    """match's counts for a labelled photo, with whether its one labelled board was recovered and
+    how many boards beyond the labelled ones were found (spurious)."""
+    counts = match(result.xy, labels)
+    counts["board_recovered"] = len(sizes) == 1 and board_recovered(result, labels, *sizes[0])
+    counts["spurious_boards"] = max(0, len(result.boards) - len(sizes))
+    return counts
+
+
 def same_indexing(found: np.ndarray, true: np.ndarray) -> bool:
     """Whether found (M, 2) (row, col) = one of the board's 8 symmetries of true (M, 2) + one offset."""
     return any((lambda off: (off == off[0]).all())(found - true @ m.T) for m in SYMMETRIES)
@@ -142,10 +151,7 @@ def evaluate(detector: ccdn.Detector, synthetic: int, seed: int, real_dev: bool 
     per_image = []
     if real_dev and REAL_DEV.is_dir():
         for group, name, path, labels, sizes in real_dev_cases():
-            result = detector.detect(path, boards=True)
-            r = match(result.xy, labels)
-            r["board_recovered"] = len(sizes) == 1 and board_recovered(result, labels, *sizes[0])
-            r["spurious_boards"] = max(0, len(result.boards) - len(sizes))
+            r = photo_counts(detector.detect(path, boards=True), labels, sizes)
             groups[group].append(r)
             per_image.append({"group": group, "image": name, **{k: v for k, v in r.items() if k != "errors"}})
     elif real_dev:

@@ -25,7 +25,7 @@ import numpy as np
 import ccdn
 from ccdn.models import DEFAULT_HELP
 
-from accuracy import REAL_DEV, ROOT, board_recovered, match, real_dev_cases, summarise, write_report
+from accuracy import REAL_DEV, ROOT, photo_counts, real_dev_cases, summarise, write_report
 from machine import cpu_name
 
 Perturbation = Callable[[np.ndarray, np.ndarray, int], tuple[np.ndarray, np.ndarray]]  # (gray, labels, seed)
@@ -95,10 +95,7 @@ def evaluate(detector: ccdn.Detector, names: list[str], limit: int) -> dict:
         rows = []
         for photo, gray, labels, sizes in photos:
             image, moved = PERTURBATIONS[perturbation](gray, labels, zlib.crc32(photo.encode()))
-            result = detector.detect(image)
-            row = match(result.xy, moved)
-            row["board_recovered"] = len(sizes) == 1 and board_recovered(result, moved, *sizes[0])
-            row["spurious_boards"] = max(0, len(result.boards) - len(sizes))
+            row = photo_counts(detector.detect(image), moved, sizes)
             rows.append(row)
             per_image.append({"perturbation": perturbation, "file": photo,
                               **{k: v for k, v in row.items() if k != "errors"}})

@@ -58,10 +58,6 @@ def nearest_distances(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.linalg.norm(truth[:, None] - found[None].astype(np.float64), axis=2).min(1)
 
 
-EXTREME_POSE = dict(square_px=(15.0, 60.0), min_tilt_deg=60.0, max_tilt_deg=75.0)  # calm_scene changes that
-# render benchmarks/stress.py's extreme-pose subset (seeds 7_100_000 on)
-
-
 def calm_scene(seed: int, **changes):
     """A render of one board without lens, blur, noise or lighting effects (ccdn_training.synth),
     with `changes` to its SceneConfig."""
@@ -70,3 +66,16 @@ def calm_scene(seed: int, **changes):
     calm = dict(p_no_board=0, p_two_boards=0, p_occluder=0, p_blur=0, p_motion=0, p_defocus=0, p_noise=0, p_jpeg=0,
                 p_glare=0, p_shadow=0, p_dark=0, p_low_contrast=0, p_radial=0, p_fisheye=0, p_invert=0)
     return render_scene(np.random.default_rng(seed), SceneConfig(**{**calm, **changes}))
+
+
+def stress_scene(subset: str, seed: int):
+    """Render `seed` of benchmarks/stress.py's `subset` as the benchmark does (its calm scene with the
+    subset's condition), so that a test and the benchmark's table speak of the same image."""
+    import sys
+
+    from ccdn_training.synth import SceneConfig, render_scene
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from stress import CALM, SUBSETS
+
+    return render_scene(np.random.default_rng(seed), SceneConfig(**{**CALM, **SUBSETS[subset]}))

@@ -271,9 +271,9 @@ def test_a_coarse_pass_lets_refinement_walk_three_shrunk_pixels_from_a_peak():
     """`fast`'s peaks on a shrunk frame can lie ~2 shrunk px off (its 4x4-pixel output cells): this
     corner of a partial board 3.6 px from the frame's edge has its halved-frame peak 4.1 px away
     (measured), beyond the 2-shrunk-pixel walk allowed before, and was missed."""
-    from conftest import calm_scene
+    from conftest import stress_scene
 
-    scene = calm_scene(7_130_015, square_px=(45.0, 110.0), max_tilt_deg=40.0)  # the stress set's partial render
+    scene = stress_scene("partial", 7_130_015)
     corner = np.array([[48.0, 476.4]])
     assert nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, corner)[0] < 0.1
 
@@ -285,13 +285,13 @@ def test_a_board_is_not_grown_into_cells_flatter_than_a_seed_square():
     on the stress set's extreme-pose render 7100021, 16 of a 25-corner board's corners lay 2-4 px
     from every true corner. A steep board whose cells stay above that (render 7100050, sines down to
     0.45) is still found whole."""
-    from conftest import EXTREME_POSE, calm_scene
+    from conftest import stress_scene
 
     detector = ccdn.Detector(threads=2)
-    sliver = calm_scene(7_100_021, **EXTREME_POSE)
+    sliver = stress_scene("extreme-pose", 7_100_021)
     found = detector.detect(sliver.image).xy
     assert (nearest_distances(sliver.corners, found) < 1.5).all()  # every corner found is a true one
-    board = calm_scene(7_100_050, **EXTREME_POSE)
+    board = stress_scene("extreme-pose", 7_100_050)
     found = detector.detect(board.image).xy
     assert (nearest_distances(found, board.corners) < 1.5).all()  # every true corner found
     assert (nearest_distances(board.corners, found) < 1.5).all()

@@ -463,9 +463,9 @@ def test_a_board_does_not_wander_off_its_lattice_where_its_lines_would_turn_shar
     corners, 23 of them tips 2.8-5 px from any true corner, its rows turning by up to 100 degrees.
     Lines may turn no more than ccdn.grid.MAX_TURN: what is left is the true lattice, indexed as it is."""
     import ccdn
-    from conftest import EXTREME_POSE, calm_scene
+    from conftest import stress_scene
 
-    scene = calm_scene(7_100_011, **EXTREME_POSE)
+    scene = stress_scene("extreme-pose", 7_100_011)
     (board,) = ccdn.Detector(threads=2).detect(scene.image).boards
     kept, label = true_part(board, scene)
     assert len(kept) >= 20 and len(board) - len(kept) <= 2
@@ -481,9 +481,9 @@ def test_a_board_does_not_take_corners_of_the_board_beside_it(seed):
     quads uniform where a seed's are sampled (ccdn.grid.WIDE_SPREAD): every board holds corners of
     one true board only, indexed as they are."""
     import ccdn
-    from conftest import calm_scene
+    from conftest import stress_scene
 
-    scene = calm_scene(seed, square_px=(15.0, 60.0), max_tilt_deg=40.0, p_two_boards=1.0)  # the stress set's two-boards
+    scene = stress_scene("two-boards", seed)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert len(boards) == 2
     for board in boards:
@@ -503,9 +503,9 @@ def test_a_board_half_in_deep_shadow_is_one_board(seed, detected):
     all 60 and of 73 of the 77 (4 on the shadow's edge are missed); before, boards of 28 + 21 and
     28 + 24 + 13 corners."""
     import ccdn
-    from conftest import calm_scene
+    from conftest import stress_scene
 
-    scene = calm_scene(seed, square_px=(15.0, 60.0), max_tilt_deg=40.0, p_shadow=1.0, shadow_depth=(0.8, 0.95))
+    scene = stress_scene("shadow", seed)
     (board,) = find_boards(scene.image, scene.corners, np.ones(len(scene.corners)), complete=True)
     assert len(board) == len(scene.corners)
     assert index_map(board, scene.grid[board.corner_index]) is not None
@@ -520,11 +520,12 @@ def test_where_the_frame_cuts_a_board_its_outline_gives_no_corner():
     wide). Corners closer than ccdn.grid.EDGE_MARGIN to the frame's edge join no board (the renders'
     labels leave them out too): every corner found is a true one."""
     import ccdn
-    from conftest import calm_scene
+    from ccdn.grid import EDGE_MARGIN
+    from conftest import stress_scene
 
-    scene = calm_scene(7_130_009, square_px=(45.0, 110.0), max_tilt_deg=40.0)  # the stress set's partial render
+    scene = stress_scene("partial", 7_130_009)
     h, w = scene.image.shape
     found = ccdn.Detector(threads=2).detect(scene.image).xy
     assert len(found) >= 20
-    assert (found >= 1.5).all() and (found <= [w - 2.5, h - 2.5]).all()
+    assert (found >= EDGE_MARGIN).all() and (found <= np.array([w - 1, h - 1]) - EDGE_MARGIN).all()
     assert (np.linalg.norm(found[:, None] - scene.corners[None], axis=2).min(1) < 1.0).all()
