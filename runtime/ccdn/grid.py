@@ -109,6 +109,7 @@ SEED_REACH = 24  # ... and its fourth corner among these
 SEED_CHUNK = 256  # seeds checked at once
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 TOLERANCE = 0.3  # of the shorter local lattice step
+NARROW_ALTITUDE = 1.5  # squares narrower than this many fit windows get the narrow window's second fit (refine)
 MIN_SINE = 0.3  # of the angle between the lattice steps: flatter cells are too sheared to sample
 MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sharper turn is a wrong corner ...
 KINK_PX = 2.0  # ... where it also moves the shorter step's end this far (small squares' corner error turns steps)
@@ -451,7 +452,8 @@ class _Grower:
         typical = float(median(tol))
         radius = window_for_spacing(typical / TOLERANCE)
         points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, max_shift=float(tol.max()),
-                                            wide=int(np.clip(typical, radius + 2, 8)))
+                                            wide=int(np.clip(typical, radius + 2, 8)),
+                                            narrow=_altitude(u, v) < NARROW_ALTITUDE * radius)
         points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
@@ -633,6 +635,11 @@ def _inside(xy: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """(N,) whether points xy (N, 2) lie at least EDGE_MARGIN px inside a frame of `shape` (H, W)."""
     h, w = shape[:2]
     return ((xy >= EDGE_MARGIN) & (xy <= np.array([w - 1, h - 1]) - EDGE_MARGIN)).all(1)
+
+
+def _altitude(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The lesser height of the parallelograms spanned by steps u, v (N, 2): a square's narrowest width."""
+    return np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / np.maximum(np.hypot(*u.T), np.hypot(*v.T))
 
 
 def _shorter(u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -27,6 +27,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 METHODS = ("saddle", "cornersubpix", "none")
 SUBPIXEL_ITERATIONS = 2
+NARROW_RADIUS = 2
 
 
 def window_for_spacing(spacing: float) -> int:
@@ -124,18 +125,21 @@ def _weighted_pinv(design: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigma: float = 1.2,
                          iterations: int = 3, max_shift: float = 2.0, min_saddle: float = 0.5,
-                         wide: int = 0, rough: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                         wide: int = 0, rough: bool = False, narrow: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Refine integer peaks xy (N, 2) to sub-pixel saddle points of the smoothed image; `wide` >
     radius: a first pass with that window radius (module docstring); `rough`: a pass whose result
     only starts a finer one, which refits anyway: no sub-pixel re-fits after the whole-pixel steps
-    and no re-fits of corners near the frame's edge with smaller windows.
+    and no re-fits of corners near the frame's edge with smaller windows. `narrow`: (N,) mask of
+    corners that, where this fit fails, are fitted again from their start with the narrowest window
+    (NARROW_RADIUS): a steep view's squares can be narrower than the window, which then spans the
+    neighbouring corners' edges and finds no saddle.
 
     Returns refined xy (N, 2) float32 and a converged mask (N,) bool.
     """
     if wide > radius and len(xy):
         widely, ok = refine_saddle_points(gray, xy, wide, 0.4 * wide, 5, max_shift, min_saddle)
         fine, ok_fine = refine_saddle_points(gray, np.where(ok[:, None], widely, xy), radius, sigma, iterations,
-                                             max_shift, min_saddle)
+                                             max_shift, min_saddle, narrow=narrow)
         ok = ok_fine & (np.hypot(*(fine - xy).T) <= max_shift)
         return np.where(ok[:, None], fine, xy).astype(np.float32), ok
     n = len(xy)
@@ -175,6 +179,10 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
                 refined[group], ok[group] = refine_saddle_points(gray, refined[group], small, 0.4 * small, iterations,
                                                                  max_shift, min_saddle)
     ok &= np.hypot(*(refined - start).T) <= max_shift
+    again = ~ok & narrow if narrow is not None and radius > NARROW_RADIUS else np.zeros(n, bool)
+    if again.any():
+        refined[again], ok[again] = refine_saddle_points(gray, start[again], NARROW_RADIUS, 0.4 * NARROW_RADIUS,
+                                                         iterations, max_shift, min_saddle)
     return np.where(ok[:, None], refined, start).astype(np.float32), ok
 
 
