@@ -21,7 +21,9 @@ counted neither way. Where two corners are closer than 10 px (small squares, ste
 shrinks to half their distance (so >= 1.5 px): one detection can then hit one corner only. Times are
 per image, median over the subset, after one warm-up call. For detectors that index their corners
 (ccdn's boards) the run also counts boards whose (row, col) disagree with the render's grid: a
-wrongly indexed board silently corrupts a calibration.
+wrongly indexed board silently corrupts a calibration. Steep views and small squares have corners a
+person can hardly see: each labelled corner's squares are measured (their narrowest width across,
+from the labels' lattice) and the missed share is also given per width class (`WIDTH_CLASSES`).
 
     python benchmarks/stress.py [--per-subset 20] [--subsets clean noise] [--detectors ccdn opencv]
     python benchmarks/stress.py --skip 20   # the next 20 per subset: a held-out sample of the same conditions
@@ -52,6 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SEED_BASE = 7_000_000
 SEEDS_PER_SUBSET = 10_000
 MIN_SPACING_PX = 3.0
+WIDTH_CLASSES = ((0.0, 4.0), (4.0, 6.0), (6.0, np.inf))  # px across a corner's narrowest square
 CALM = dict(p_no_board=0.0, p_two_boards=0.0, square_px=(15.0, 60.0), max_tilt_deg=40.0, p_radial=0.0, p_fisheye=0.0,
             p_occluder=0.0, p_invert=0.0, p_blur=0.0, p_motion=0.0, p_defocus=0.0, p_noise=0.0, p_jpeg=0.0,
             p_low_contrast=0.0, p_dark=0.0, p_glare=0.0, p_shadow=0.0)
@@ -96,6 +99,22 @@ def squares_in_frame(scene: Scene) -> bool:
         if np.any((outer < -0.5) | (outer > [w - 0.5, h - 0.5])):
             return False
     return True
+
+
+def square_widths(scene: Scene) -> np.ndarray:
+    """(M,) per labelled corner, the narrowest width across of the squares around it that the labels
+    span (a cell's lesser parallelogram height: a steep view thins squares to slivers); inf where none."""
+    index = {(b, r, c): k for k, (b, (r, c)) in enumerate(zip(scene.board_index.tolist(), scene.grid.tolist()))}
+    widths = np.full(len(scene.corners), np.inf)
+    for k, (b, (r, c)) in enumerate(zip(scene.board_index.tolist(), scene.grid.tolist())):
+        for dr, dc in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
+            along_rows, along_cols = index.get((b, r + dr, c)), index.get((b, r, c + dc))
+            if along_rows is None or along_cols is None:
+                continue
+            u, v = scene.corners[along_rows] - scene.corners[k], scene.corners[along_cols] - scene.corners[k]
+            area = abs(float(u[0] * v[1] - u[1] * v[0]))
+            widths[k] = min(widths[k], area / max(np.hypot(*u), np.hypot(*v)))
+    return widths
 
 
 def closest_spacing(scene: Scene) -> float:
@@ -193,12 +212,15 @@ def evaluate(sets: dict[str, list[tuple[int, Scene]]], adapters: list[Adapter], 
                 xy = adapter.detect(scene.image, opencv_size(scene, fallback))
                 times.append((time.perf_counter() - t0) * 1e3)
                 rows.append(match(xy, scene.corners, scene.ignore, radius))
+                rows[-1]["missed_by_width"] = missed_by_width(xy, scene, radius)
                 if adapter.boards is not None:
                     rows[-1]["boards"], rows[-1]["wrong_index_boards"] = wrongly_indexed(adapter.boards(), scene, radius)
                 per_image.append({"subset": name, "seed": seed, "detector": adapter.name, "ms": times[-1],
-                                  "radius_px": radius, **{k: v for k, v in rows[-1].items() if k != "errors"}})
+                                  "radius_px": radius,
+                                  **{k: v for k, v in rows[-1].items() if k not in ("errors", "missed_by_width")}})
                 bar.update()
-            subsets[name]["detectors"][adapter.name] = {**summarise(rows), "median_ms": float(np.median(times)),
+            subsets[name]["detectors"][adapter.name] = {**summarise(rows), "missed_by_width": width_summary(rows),
+                                                        "median_ms": float(np.median(times)),
                                                         "p90_ms": float(np.percentile(times, 90))}
             pooled[adapter.name] += rows
             pooled_ms[adapter.name] += times
@@ -208,6 +230,43 @@ def evaluate(sets: dict[str, list[tuple[int, Scene]]], adapters: list[Adapter], 
     return {"subsets": subsets, "all": overall, "per_image": per_image,
             "opencv_board_size": f"true size of the scene's most visible board; boardless scenes: {fallback}, "
                                  "the run's most common size"}
+
+
+def missed_by_width(xy: np.ndarray, scene: Scene, radius: float) -> list[tuple[int, int]]:
+    """(labels, missed) per WIDTH_CLASSES: each class's corners matched as the only labels, the other
+    corners ignored (a detection near them counts neither way)."""
+    widths = square_widths(scene)
+    counts = []
+    for low, high in WIDTH_CLASSES:
+        inside = (widths >= low) & (widths < high)
+        others = np.concatenate([scene.ignore.reshape(-1, 2), scene.corners[~inside]])
+        counts.append((int(inside.sum()), match(xy, scene.corners[inside], others, radius)["missed"]))
+    return counts
+
+
+def width_summary(rows: list[dict]) -> dict[str, dict]:
+    """Per width class ("4-6 px"): its labels and the missed share of them, over a subset's images."""
+    out = {}
+    for k, (low, high) in enumerate(WIDTH_CLASSES):
+        labels = sum(r["missed_by_width"][k][0] for r in rows)
+        missed = sum(r["missed_by_width"][k][1] for r in rows)
+        key = f"{low:g}-{high:g} px" if np.isfinite(high) else f">= {low:g} px"
+        out[key] = {"labels": labels, "missed_pct": 100.0 * missed / labels if labels else None}
+    return out
+
+
+def format_widths(result: dict) -> str:
+    """Missed % per width class for the subsets that have corners of squares under the widest class."""
+    lines = []
+    for name, sub in result["subsets"].items():
+        for det, s in sub["detectors"].items():
+            classes = s["missed_by_width"]
+            if sum(c["labels"] for c in list(classes.values())[:-1]) == 0:
+                continue
+            cells = ", ".join(f"{key}: {c['missed_pct']:.1f} % of {c['labels']}" for key, c in classes.items()
+                              if c["labels"])
+            lines.append(f"{name:<14}{det:<16}missed by square width across: {cells}")
+    return "\n".join(lines)
 
 
 def format_results(result: dict) -> str:
@@ -261,6 +320,7 @@ def main(argv: list[str] | None = None) -> None:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1))
     print(format_results(result))
+    print(format_widths(result))
     for name, note in {**result["config"]["detectors"], **skipped}.items():
         print(f"{name}: {note}")
     print(f"opencv board size: {result['opencv_board_size']}")

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import REAL_DEV
 
@@ -48,6 +49,26 @@ def test_stress_counts_a_clean_render_whole_and_a_boardless_one_empty(tmp_path, 
     assert clean["labels"] > 0 and clean["missed_pct"] == 0 and clean["false_positives"] == 0
     assert clean["accuracy_px"] < 0.1
     assert empty["labels"] == 0 and empty["false_positives"] == 0
+    widths = clean["missed_by_width"]  # a calm render's squares are all wide
+    assert widths[">= 6 px"] == {"labels": clean["labels"], "missed_pct": 0.0}
+    assert widths["0-4 px"]["labels"] == widths["4-6 px"]["labels"] == 0
+
+
+def test_square_widths_tell_a_steep_views_slivers_from_a_calm_boards_squares():
+    """The stress set's extreme-pose render 7100061 is a board seen almost edge-on: 2-3 px across its
+    squares (measured), though its corners lie 4.6-13 px apart; a calm board's squares are as wide as
+    its corners are apart."""
+    from conftest import stress_scene
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from stress import square_widths
+
+    sliver = square_widths(stress_scene("extreme-pose", 7_100_061))
+    assert len(sliver) == 42 and sliver.max() < 3.5
+    calm = stress_scene("clean", 7_000_004)
+    apart = np.linalg.norm(calm.corners[:, None] - calm.corners[None], axis=2)
+    np.fill_diagonal(apart, np.inf)
+    assert np.allclose(square_widths(calm), apart.min(1), rtol=0.1)
 
 
 def test_accuracy_reports_the_paper_metrics_per_group(tmp_path):
