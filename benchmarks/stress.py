@@ -204,15 +204,16 @@ def evaluate(sets: dict[str, list[tuple[int, Scene]]], adapters: list[Adapter], 
     bar = tqdm(total=sum(map(len, sets.values())) * len(adapters), unit="det", disable=not show_bar, file=sys.stderr)
     for name, scenes in sets.items():
         radii = [match_radius(scene) for _, scene in scenes]
+        widths = [square_widths(scene) for _, scene in scenes]  # the labels', alike for every detector
         subsets[name] = {"overrides": SUBSETS[name], "min_radius_px": min(radii), "detectors": {}}
         for adapter in adapters:
             rows, times = [], []
-            for (seed, scene), radius in zip(scenes, radii):
+            for (seed, scene), radius, width in zip(scenes, radii, widths):
                 t0 = time.perf_counter()
                 xy = adapter.detect(scene.image, opencv_size(scene, fallback))
                 times.append((time.perf_counter() - t0) * 1e3)
                 rows.append(match(xy, scene.corners, scene.ignore, radius))
-                rows[-1]["missed_by_width"] = missed_by_width(xy, scene, radius)
+                rows[-1]["missed_by_width"] = missed_by_width(xy, scene, width, radius)
                 if adapter.boards is not None:
                     rows[-1]["boards"], rows[-1]["wrong_index_boards"] = wrongly_indexed(adapter.boards(), scene, radius)
                 per_image.append({"subset": name, "seed": seed, "detector": adapter.name, "ms": times[-1],
@@ -232,10 +233,10 @@ def evaluate(sets: dict[str, list[tuple[int, Scene]]], adapters: list[Adapter], 
                                  "the run's most common size"}
 
 
-def missed_by_width(xy: np.ndarray, scene: Scene, radius: float) -> list[tuple[int, int]]:
-    """(labels, missed) per WIDTH_CLASSES: each class's corners matched as the only labels, the other
-    corners ignored (a detection near them counts neither way)."""
-    widths = square_widths(scene)
+def missed_by_width(xy: np.ndarray, scene: Scene, widths: np.ndarray, radius: float) -> list[tuple[int, int]]:
+    """(labels, missed) per WIDTH_CLASSES of the scene's corners (their square_widths): each class's
+    corners matched as the only labels, the other corners ignored (a detection near them counts
+    neither way)."""
     counts = []
     for low, high in WIDTH_CLASSES:
         inside = (widths >= low) & (widths < high)

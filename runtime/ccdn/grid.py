@@ -290,7 +290,7 @@ class _Grower:
         network did not propose): also the seed's test of even contrast and uniform quads (here on
         the log scale: _alternate), which points on a board's outline next to clutter fail, with at
         least min_pairs of the 4 quad pairs on the image; without it, a point that fails gets the
-        module docstring's second chance, and the crowded points ((K,) bool, given without strict)
+        module docstring's second chance, and the crowded points ((K,) bool; none when not given)
         must have quads uniform where a seed's are sampled (WIDE_SPREAD) to pass without it."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
@@ -306,8 +306,8 @@ class _Grower:
                              np.concatenate([v, NEAR_QUADS * v]))
         far = tuple(part[:, :k] for part in levels)
         plain = self._alternate(far, sign, False)
-        wide = plain & crowded
-        if wide.any():  # quads uniform where a seed's are sampled (a NaN contrast does not refuse)
+        # crowded points: quads uniform where a seed's are sampled (a NaN contrast does not refuse)
+        if crowded is not None and (wide := plain & crowded).any():
             wide_diffs, wide_spread = quad_differences(self.sampler, points[wide], u[wide], v[wide], SEED_REACH_UNIFORM,
                                                        SEED_AXES)
             plain[wide] = ~(wide_spread > WIDE_SPREAD * np.abs(nanmedian_rows(wide_diffs)))

@@ -179,8 +179,7 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
                 refined[group], ok[group] = refine_saddle_points(gray, refined[group], small, 0.4 * small, iterations,
                                                                  max_shift, min_saddle)
     ok &= np.hypot(*(refined - start).T) <= max_shift
-    again = ~ok & narrow if narrow is not None and radius > NARROW_RADIUS else np.zeros(n, bool)
-    if again.any():
+    if narrow is not None and radius > NARROW_RADIUS and (again := ~ok & narrow).any():
         refined[again], ok[again] = refine_saddle_points(gray, start[again], NARROW_RADIUS, 0.4 * NARROW_RADIUS,
                                                          iterations, max_shift, min_saddle)
     return np.where(ok[:, None], refined, start).astype(np.float32), ok
