@@ -308,3 +308,19 @@ def test_a_board_is_not_grown_into_cells_flatter_than_a_seed_square():
     found = detector.detect(board.image).xy
     assert (nearest_distances(found, board.corners) < 1.5).all()  # every true corner found
     assert (nearest_distances(board.corners, found) < 1.5).all()
+
+
+def test_corners_under_a_shadows_edge_are_completed():
+    """Where a blurred shadow's edge crosses a board, the light falls across a corner's quads: at
+    their centres, half a square away, a lit dark square can outshine a shaded light one, and
+    completion's strict image test failed there (the stress set's shadow render 7160017: 23 of 77
+    corners missed, measured). The test also passes on the quads sampled close to the corner, where
+    the light varies less, if the corner's contrast shows it lies in other light than the seed's
+    (ccdn.grid.SHADED_CONTRAST)."""
+    from conftest import stress_scene
+
+    scene = stress_scene("shadow", 7_160_017)
+    found = ccdn.Detector(threads=2).detect(scene.image).xy
+    assert len(scene.corners) == 77
+    assert (nearest_distances(found, scene.corners) < 1.5).sum() >= 63
+    assert (nearest_distances(scene.corners, found) < 1.5).all()  # every corner found is a true one

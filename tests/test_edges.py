@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import ccdn
-from conftest import calm_scene
-from ccdn.edges import NOISY_SIGMA, image_noise, lattice_steps
+from conftest import calm_scene, stress_scene
+from ccdn.edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines
 
 
 def _calm_scene(seed: int, noise: float):
@@ -28,30 +28,57 @@ def test_image_noise_reads_the_added_noise(examples):
     assert image_noise(np.zeros((2, 2), np.uint8)) == 0.0
 
 
-def test_edge_lines_beat_the_saddle_fit_in_heavy_noise(detector, monkeypatch):
-    """On noisy renders (18 grey levels) the detector moves board corners to their edge lines, which
-    land closer to the exact corners than the saddle fit it returns with the edge stage off."""
-    scenes = [_calm_scene(seed, 0.07) for seed in (3, 4, 5)]
-    assert all(image_noise(scene.image) >= NOISY_SIGMA for scene in scenes)
+def _saddle_only(monkeypatch) -> None:
+    """Switch the edge-line refinement off: no frame counts as noisy, no board as straight."""
+    monkeypatch.setattr("ccdn.detector.NOISY_SIGMA", np.inf)
+    monkeypatch.setattr("ccdn.edges.FLAT_BOARD", 0.0)
+
+
+def _compare(detector, monkeypatch, scenes) -> tuple[np.ndarray, np.ndarray]:
+    """Errors of the labelled corners found with the edge stage and without it (_saddle_only)."""
     with_edges = [detector.detect(scene.image) for scene in scenes]
     assert all("edges" in found.timings_ms for found in with_edges)
-    monkeypatch.setattr("ccdn.detector.NOISY_SIGMA", np.inf)
-    without = [detector.detect(scene.image) for scene in scenes]
-    assert all("edges" not in found.timings_ms for found in without)
+    with monkeypatch.context() as patch:
+        _saddle_only(patch)
+        without = [detector.detect(scene.image) for scene in scenes]
     on = np.concatenate([_errors(found.xy, scene.corners) for found, scene in zip(with_edges, scenes)])
     off = np.concatenate([_errors(found.xy, scene.corners) for found, scene in zip(without, scenes)])
     assert len(on) == len(off) > 100
     hits = (on < 1.5) & (off < 1.5)  # detections of labelled corners (not ones the renderer ignores)
     assert hits.mean() > 0.95
-    assert on[hits].mean() < 0.8 * off[hits].mean()
+    return on[hits], off[hits]
 
 
-def test_clean_frames_keep_the_saddle_fit(detector):
-    scene = _calm_scene(3, 0.0)
-    assert image_noise(scene.image) < NOISY_SIGMA
-    found = detector.detect(scene.image)
-    assert "edges" not in found.timings_ms
-    assert _errors(found.xy, scene.corners).mean() < 0.05
+def test_edge_lines_beat_the_saddle_fit_in_heavy_noise(detector, monkeypatch):
+    """On noisy renders (18 grey levels) the detector moves board corners to their edge lines, which
+    land closer to the exact corners than the saddle fit it returns with the edge stage off."""
+    scenes = [_calm_scene(seed, 0.07) for seed in (3, 4, 5)]
+    assert all(image_noise(scene.image) >= NOISY_SIGMA for scene in scenes)
+    on, off = _compare(detector, monkeypatch, scenes)
+    assert on.mean() < 0.8 * off.mean()
+
+
+def test_edge_lines_beat_the_saddle_fit_on_straight_clean_boards(detector, monkeypatch):
+    """Without noise too, where a board's lines are straight (a pinhole lens): about half the error."""
+    scenes = [_calm_scene(seed, 0.0) for seed in (3, 4, 5)]
+    assert all(image_noise(scene.image) < NOISY_SIGMA for scene in scenes)
+    on, off = _compare(detector, monkeypatch, scenes)
+    assert on.mean() < 0.7 * off.mean()
+    assert on.mean() < 0.03
+
+
+def test_curved_and_thin_boards_keep_the_saddle_fit(detector):
+    """A fisheye lens bends the lattice lines, which the edge lines would fit straight, and squares a
+    few pixels thin leave no room for edge profiles: on_straight_lines leaves those corners alone."""
+    def straight(scene) -> np.ndarray:
+        board = detector.detect(scene.image).boards[0]
+        assert len(board) >= 40
+        return on_straight_lines(board, lattice_steps(board))
+
+    assert straight(stress_scene("clean", 7000004)).all()
+    assert not straight(stress_scene("fisheye", 7010004)).any()
+    steep = straight(stress_scene("extreme-pose", 7100013))  # tilted 60-75 degrees: its far squares are slivers
+    assert 0 < steep.sum() < 0.5 * len(steep)
 
 
 def test_lattice_steps_mirror_missing_neighbours():

@@ -1,8 +1,9 @@
 """The Detector: image -> network -> peaks -> outlier filter -> refinement -> boards, built once.
 
-Refinement is the saddle fit (ccdn.refine); on noisy frames (ccdn.edges.image_noise >= NOISY_SIGMA
-grey levels) the corners of the boards found are then moved onto their edge lines (ccdn.edges),
-which averages the noise over whole edges.
+Refinement is the saddle fit (ccdn.refine); the corners of the boards found are then moved onto
+their edge lines (ccdn.edges), which use many more pixels: on noisy frames (ccdn.edges.image_noise
+>= NOISY_SIGMA grey levels) every corner, elsewhere those on straight lattice lines
+(ccdn.edges.on_straight_lines: no lens distortion, squares not thin).
 
 Frames go coarse-to-fine: the network first runs on the frame shrunk by the largest power of two
 that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x, 4x, then 2x).
@@ -30,7 +31,7 @@ import time
 import cv2
 import numpy as np
 
-from .edges import NOISY_SIGMA, image_noise, lattice_steps, refine_on_edges
+from .edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
 from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .models import default_coarse_model
@@ -212,8 +213,8 @@ class Detector:
             if complete or board_size is not None:
                 refined, values, found = _keep_board_corners(refined, values, found)
             clock.lap("boards")
-            if complete and found and self.refinement == "saddle" and image_noise(gray) >= NOISY_SIGMA:
-                refined, found = _refined_on_edges(gray, refined, found)
+            if complete and found and self.refinement == "saddle":
+                refined, found = _refined_on_edges(gray, refined, found, image_noise(gray) >= NOISY_SIGMA)
                 clock.lap("edges")
         return refined, values, found
 
@@ -235,12 +236,17 @@ def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...
     return np.concatenate([xy, extra]), np.concatenate([values, near]).astype(np.float32)
 
 
-def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...]):
-    """xy and boards with each board's corners refined on their edge lines (ccdn.edges: noisy frames)."""
+def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...], noisy: bool):
+    """xy and boards with the boards' corners refined on their edge lines (ccdn.edges): all of them
+    on a noisy frame, else those on straight lines."""
     xy = xy.copy()
     refined = []
     for board in boards:
-        moved_xy, moved = refine_on_edges(gray, board.xy, lattice_steps(board))
+        steps = lattice_steps(board)
+        chosen = np.ones(len(board), bool) if noisy else on_straight_lines(board, steps)
+        moved_xy, moved = board.xy.copy(), np.zeros(len(board), bool)
+        if chosen.any():
+            moved_xy[chosen], moved[chosen] = refine_on_edges(gray, board.xy[chosen], steps[chosen])
         xy[board.corner_index[moved]] = moved_xy[moved]
         board_xy = np.where(moved[:, None], moved_xy, board.xy)
         board_xy.setflags(write=False)

@@ -135,6 +135,8 @@ EDGE_MARGIN = 1.5  # px: a corner closer to the frame's edge joins no board: the
 # corners out too (ccdn_training.synth), their saddle window is mostly off the frame, and where the frame's edge
 # cuts a board's outline, its one visible quad pair passes the image test like a corner's
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
+SHADED_NEAR = True  # completion's strict test also passes on the quads sampled NEAR_QUADS of the way ...
+SHADED_CONTRAST = 0.85  # ... where their grey-level contrast is below this x the seed's (or above 1 / this)
 _PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
 # the pairs (quad_differences' columns) that leave each quad out
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
@@ -193,7 +195,7 @@ class _Grower:
         self.added: list[np.ndarray] = []
         self.pos = self.idx = self.stale = self.tried = self.origin = None  # the canvas, made by _place
         self.sign = 1.0
-        self.threshold = MIN_CONTRAST
+        self.contrast = self.threshold = MIN_CONTRAST
 
     def points(self, idx: np.ndarray) -> np.ndarray:
         """Positions (K, 2) of corners idx (K,): given ones, or ones this grower added."""
@@ -206,6 +208,7 @@ class _Grower:
     def seed(self, corners: np.ndarray, sign: float, contrast: float) -> None:
         """Start the grid from a verified square (_seed_squares): corners (0,0), (0,1), (1,0), (1,1)."""
         self.sign = sign  # + : quads of even row + col are light
+        self.contrast = contrast
         self.threshold = max(MIN_CONTRAST, RELATIVE_CONTRAST * contrast)
         self._place(np.array([(0, 0), (0, 1), (1, 0), (1, 1)]), np.asarray(corners, np.int64))
 
@@ -284,21 +287,30 @@ class _Grower:
         return nanmedian_rows(np.concatenate([line, diagonal], 1))
 
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
-                 strict: bool = False, min_pairs: int = 1, crowded: np.ndarray | None = None) -> np.ndarray:
+                 strict: bool = False, min_pairs: int = 1, crowded: np.ndarray | None = None,
+                 near: bool = False) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
         image are not counted; steps flatter than a seed's fail: MIN_SINE); strict (for corners the
         network did not propose): also the seed's test of even contrast and uniform quads (here on
         the log scale: _alternate), which points on a board's outline next to clutter fail, with at
         least min_pairs of the 4 quad pairs on the image; without it, a point that fails gets the
         module docstring's second chance, and the crowded points ((K,) bool; none when not given)
-        must have quads uniform where a seed's are sampled (WIDE_SPREAD) to pass without it."""
+        must have quads uniform where a seed's are sampled (WIDE_SPREAD) to pass without it.
+        near (strict only): the strict test also passes where it does on quads sampled NEAR_QUADS
+        of the way to their centres (SHADED_NEAR)."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         square = _square_enough(u, v)
         if strict:  # the strict test (completion's corners, prune's lone ones) gets no second chance
             levels = quad_levels(self.sampler, points, u, v)
             on_image = np.isfinite(pair_differences(levels[0])).sum(1) >= min_pairs
-            return self._alternate(levels, sign, strict) & on_image & square
+            ok = self._alternate(levels, sign, strict)
+            if near and (again := ~ok & on_image & square).any():
+                levels = quad_levels(self.sampler, points[again], NEAR_QUADS * u[again], NEAR_QUADS * v[again])
+                contrast = nanmedian_rows(pair_differences(levels[0]) * sign[again, None]) / self.contrast
+                shaded = (contrast < SHADED_CONTRAST) | (contrast > 1 / SHADED_CONTRAST)
+                ok[again] = self._alternate(levels, sign[again], strict) & shaded
+            return ok & on_image & square
         # the second chance (module docstring), sampled in the same call: one quad may be hidden,
         # the corner's surroundings may not
         k = len(points)
@@ -445,7 +457,7 @@ class _Grower:
               & (preds[:, 1] <= h - 1))
         # the strict image test at the predictions first: a saddle fit costs ~30x more, and around a
         # board most predictions fall on its margin, where no quads alternate evenly
-        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], True, COMPLETION_MIN_PAIRS)
+        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], True, COMPLETION_MIN_PAIRS, near=SHADED_NEAR)
         cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
         if len(cells) == 0:
             return False
@@ -458,7 +470,8 @@ class _Grower:
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
         good &= _inside(points, self.gray.shape)
-        good[good] &= self._accepts(cells[good], points[good], u[good], v[good], True, COMPLETION_MIN_PAIRS)
+        good[good] &= self._accepts(cells[good], points[good], u[good], v[good], True, COMPLETION_MIN_PAIRS,
+                                    near=SHADED_NEAR)
         good[good] &= self._straight(cells[good], points[good])
         taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
         if len(taken):
