@@ -8,7 +8,7 @@ import pytest
 
 import ccdn
 from conftest import calm_scene, stress_scene
-from ccdn.edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines
+from ccdn.edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
 
 
 def _calm_scene(seed: int, noise: float):
@@ -107,3 +107,9 @@ def test_profiles_without_contrast_raise_no_warnings(detector):
         warnings.simplefilter("error")
         found = detector.detect(image)
     assert "edges" in found.timings_ms and len(found.boards) > 0
+
+
+def test_refining_no_corners_returns_empty_arrays(examples):
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    xy, moved = refine_on_edges(gray, np.zeros((0, 2), np.float32), np.zeros((0, 4, 2)))
+    assert xy.shape == (0, 2) and moved.shape == (0,)

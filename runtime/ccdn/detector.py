@@ -245,8 +245,7 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
         steps = lattice_steps(board)
         chosen = np.ones(len(board), bool) if noisy else on_straight_lines(board, steps)
         moved_xy, moved = board.xy.copy(), np.zeros(len(board), bool)
-        if chosen.any():
-            moved_xy[chosen], moved[chosen] = refine_on_edges(gray, board.xy[chosen], steps[chosen])
+        moved_xy[chosen], moved[chosen] = refine_on_edges(gray, board.xy[chosen], steps[chosen])
         xy[board.corner_index[moved]] = moved_xy[moved]
         board_xy = np.where(moved[:, None], moved_xy, board.xy)
         board_xy.setflags(write=False)

@@ -110,6 +110,8 @@ def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tupl
     """Corners xy (M, 2) moved to the crossing of their two edge lines (module docstring), given
     lattice steps (M, 4, 2) from lattice_steps. Returns xy (M, 2) float32 and whether each moved
     (corners whose lines cannot be fitted keep their position)."""
+    if len(xy) == 0:
+        return np.zeros((0, 2), np.float32), np.zeros(0, bool)
     start = xy.astype(np.float64)
     lengths = np.linalg.norm(steps, axis=2)
     image, origin, frame = _smoothed_around(gray, start, lengths)
