@@ -167,34 +167,39 @@ def _edge_lines(image: np.ndarray, frame: tuple[int, int, int, int], xy: np.ndar
     normal = np.stack([-direction[:, 1], direction[:, 0]], 1)
     half = np.minimum(0.3 * across, HALF_WIDTH)  # (L,)
     k = np.arange(-int(HALF_WIDTH / SAMPLE_STEP), int(HALF_WIDTH / SAMPLE_STEP) + 1) * SAMPLE_STEP
-    # the two half-edges of every line as rows of one (2L, ...) sampling: forward ones, then backward ones
+    # the two half-edges of every line as rows of one (2L, ...) sampling: forward ones, then backward
+    # ones; x and y apart, so that every array's last axis is the profile's samples (K)
     step = np.concatenate([forward, backward])
-    base, direction2, half2 = np.concatenate([xy, xy]), np.concatenate([direction, direction]), np.concatenate([half, half])
-    inside = np.abs(k)[None, None] <= half2[:, None, None]  # (2L, 1, K) samples within the profile
-    outer = inside & (np.abs(k)[None, None] >= 0.6 * half2[:, None, None])  # its two ends: the squares' levels
+    base, half2 = np.concatenate([xy, xy]), np.concatenate([half, half])
     length = np.linalg.norm(step, axis=1)
     unit = step / length[:, None]
-    across_unit = np.stack([-unit[:, 1], unit[:, 0]], 1)
+    across_x, across_y = -unit[:, 1], unit[:, 0]  # the unit vector across the half-edge
     t = np.linspace(*REACH, PROFILES)[None] * length[:, None]  # (2L, P)
-    centre = base[:, None] + t[..., None] * unit[:, None]
-    points = centre[:, :, None] + k[None, None, :, None] * across_unit[:, None, None]  # (2L, P, K, 2)
-    px, py = points[..., 0], points[..., 1]
+    px = (base[:, :1] + t * unit[:, :1])[..., None] + k * across_x[:, None, None]  # (2L, P, K)
+    py = (base[:, 1:] + t * unit[:, 1:])[..., None] + k * across_y[:, None, None]
     values = cv2.remap(image, px.reshape(2 * n, -1).astype(np.float32), py.reshape(2 * n, -1).astype(np.float32),
                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(px.shape)
-    low = np.where(outer & (k < 0), values, 0).sum(2) / np.maximum((outer & (k < 0)).sum(2), 1)
-    high = np.where(outer & (k > 0), values, 0).sum(2) / np.maximum((outer & (k > 0)).sum(2), 1)
-    contrast = high - low
+    inside = np.abs(k)[None] <= half2[:, None]  # (2L, K) samples within the profile
+    outer = inside & (np.abs(k)[None] >= 0.6 * half2[:, None])  # its two ends: the squares' levels
+    # sums over a profile's chosen samples as one batched product with the (2L, K) masks
+    low_side, high_side = outer & (k < 0), outer & (k > 0)
+    low = (values @ low_side[..., None].astype(np.float32))[..., 0] / np.maximum(low_side.sum(1), 1)[:, None]
+    high = (values @ high_side[..., None].astype(np.float32))[..., 0] / np.maximum(high_side.sum(1), 1)[:, None]
+    contrast = high - low  # (2L, P)
     flat = np.where(contrast == 0, np.nan, contrast)  # no edge: NaN (unusable below), not +-inf
-    rise = np.where(inside, (values - low[..., None]) / flat[..., None], 0.0)
-    edge = inside.sum(2) * SAMPLE_STEP / 2 - rise.sum(2) * SAMPLE_STEP  # area method: offset along across_unit
+    count = inside.sum(1)[:, None]
+    rise = ((values @ inside[..., None].astype(np.float32))[..., 0] - count * low) / flat  # the normalised step's sum
+    edge = count * SAMPLE_STEP / 2 - rise * SAMPLE_STEP  # area method: offset along the across unit vector
     x_min, y_min, x_max, y_max = frame
-    on_image = ((px >= x_min) & (px <= x_max) & (py >= y_min) & (py <= y_max)).all(2)
+    ends_x, ends_y = px[..., [0, -1]], py[..., [0, -1]]  # a profile is on the image where both its ends are
+    on_image = ((ends_x >= x_min) & (ends_x <= x_max) & (ends_y >= y_min) & (ends_y <= y_max)).all(2)
     typical = nanmedian_rows(np.where(on_image, np.abs(contrast), np.nan))[:, None]  # per half-edge
     usable = on_image & (np.abs(contrast) > 0.5 * typical) & (half2[:, None] >= MIN_HALF_WIDTH)
-    # the edge point, relative to the corner, in the line's frame (along it, across it)
-    point = t[..., None] * unit[:, None] + edge[..., None] * across_unit[:, None]
-    along = (point * direction2[:, None]).sum(2)
-    offset = (point * np.concatenate([normal, normal])[:, None]).sum(2)
+    # the edge point t unit + edge across, relative to the corner, in the line's frame (along it, across it)
+    direction2, normal2 = np.concatenate([direction, direction]), np.concatenate([normal, normal])
+    along = (t * (unit * direction2).sum(1)[:, None]
+             + edge * (across_x * direction2[:, 0] + across_y * direction2[:, 1])[:, None])
+    offset = t * (unit * normal2).sum(1)[:, None] + edge * (across_x * normal2[:, 0] + across_y * normal2[:, 1])[:, None]
     t, s, ok = (np.concatenate([part[:n], part[n:]], 1) for part in (along, offset, usable))  # (L, 2P)
     s = np.where(ok, s, 0.0)
     for _ in range(2):  # fit s = a + b t, drop profiles beyond 3 robust sigmas (occluders, clutter), refit
