@@ -244,10 +244,9 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
     for board in boards:
         steps = lattice_steps(board)
         chosen = np.ones(len(board), bool) if noisy else on_straight_lines(board, steps)
-        moved_xy, moved = board.xy.copy(), np.zeros(len(board), bool)
-        moved_xy[chosen], moved[chosen] = refine_on_edges(gray, board.xy[chosen], steps[chosen])
-        xy[board.corner_index[moved]] = moved_xy[moved]
-        board_xy = np.where(moved[:, None], moved_xy, board.xy)
+        board_xy, moved = board.xy.copy(), np.zeros(len(board), bool)  # unmoved corners keep their place
+        board_xy[chosen], moved[chosen] = refine_on_edges(gray, board.xy[chosen], steps[chosen])
+        xy[board.corner_index[moved]] = board_xy[moved]
         board_xy.setflags(write=False)
         refined.append(dataclasses.replace(board, xy=board_xy))
     return xy, tuple(refined)

@@ -30,7 +30,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .grid import Board
+from .grid import Board, altitude
 from .stats import median, nanmedian_rows
 
 NOISY_SIGMA = 5.0  # grey levels of image noise from which board corners are refined on their edges
@@ -99,10 +99,9 @@ def on_straight_lines(board: Board, steps: np.ndarray) -> np.ndarray:
         return np.zeros(len(board), bool)
     residual = np.linalg.norm(cv2.perspectiveTransform(grid[None], homography)[0] - xy, axis=1)
     lengths = np.linalg.norm(steps, axis=2)
-    u, v = steps[:, 0], steps[:, 2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        aspect = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / np.fmax(lengths[:, 0], lengths[:, 2]) ** 2
-        flat = median(residual) < FLAT_BOARD * median(lengths[np.isfinite(lengths)])
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN steps (no neighbour either way): not picked
+        aspect = altitude(steps[:, 0], steps[:, 2]) / np.fmax(lengths[:, 0], lengths[:, 2])
+    flat = median(residual) < FLAT_BOARD * median(lengths[np.isfinite(lengths)])
     return flat & (aspect >= MIN_ASPECT)
 
 
@@ -145,11 +144,8 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, lengths: np.ndarray):
     so the crop's values there equal the whole frame's."""
     h, w = gray.shape
     reach = REACH[1] * np.nanmax(lengths, initial=0.0) + HALF_WIDTH + MAX_MOVE + 1 + _KERNEL_RADIUS
-    finite = xy[np.isfinite(xy).all(1)]
-    if len(finite) == 0:
-        finite = np.zeros((1, 2))
-    x0, y0 = (max(0, int(v)) for v in np.floor(finite.min(0) - reach))
-    x1, y1 = (int(v) for v in np.minimum(np.ceil(finite.max(0) + reach) + 1, (w, h)))
+    x0, y0 = (max(0, int(v)) for v in np.floor(xy.min(0) - reach))
+    x1, y1 = (int(v) for v in np.minimum(np.ceil(xy.max(0) + reach) + 1, (w, h)))
     x1, y1 = max(x1, x0 + 1), max(y1, y0 + 1)
     image = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), SMOOTHING)
     return image, np.array([x0, y0], np.float64), (-x0, -y0, w - 1 - x0, h - 1 - y0)

@@ -135,8 +135,8 @@ EDGE_MARGIN = 1.5  # px: a corner closer to the frame's edge joins no board: the
 # corners out too (ccdn_training.synth), their saddle window is mostly off the frame, and where the frame's edge
 # cuts a board's outline, its one visible quad pair passes the image test like a corner's
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
-SHADED_NEAR = True  # completion's strict test also passes on the quads sampled NEAR_QUADS of the way ...
-SHADED_CONTRAST = 0.85  # ... where their grey-level contrast is below this x the seed's (or above 1 / this)
+SHADED_CONTRAST = 0.85  # completion's strict test also passes on the quads sampled NEAR_QUADS of the way where
+# their grey-level contrast is below this x the seed's (or above 1 / this): a corner in other light than the seed's
 _PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
 # the pairs (quad_differences' columns) that leave each quad out
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
@@ -297,7 +297,7 @@ class _Grower:
         module docstring's second chance, and the crowded points ((K,) bool; none when not given)
         must have quads uniform where a seed's are sampled (WIDE_SPREAD) to pass without it.
         near (strict only): the strict test also passes where it does on quads sampled NEAR_QUADS
-        of the way to their centres (SHADED_NEAR)."""
+        of the way to their centres, for a corner in other light than the seed's (SHADED_CONTRAST)."""
         grid = cells - self.origin
         sign = np.where((grid.sum(1) % 2) == 0, self.sign, -self.sign)
         square = _square_enough(u, v)
@@ -457,7 +457,7 @@ class _Grower:
               & (preds[:, 1] <= h - 1))
         # the strict image test at the predictions first: a saddle fit costs ~30x more, and around a
         # board most predictions fall on its margin, where no quads alternate evenly
-        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], True, COMPLETION_MIN_PAIRS, near=SHADED_NEAR)
+        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], True, COMPLETION_MIN_PAIRS, near=True)
         cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
         if len(cells) == 0:
             return False
@@ -465,13 +465,13 @@ class _Grower:
         radius = window_for_spacing(typical / TOLERANCE)
         points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, max_shift=float(tol.max()),
                                             wide=int(np.clip(typical, radius + 2, 8)),
-                                            narrow=_altitude(u, v) < NARROW_ALTITUDE * radius)
+                                            narrow=altitude(u, v) < NARROW_ALTITUDE * radius)
         points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
         good &= _inside(points, self.gray.shape)
         good[good] &= self._accepts(cells[good], points[good], u[good], v[good], True, COMPLETION_MIN_PAIRS,
-                                    near=SHADED_NEAR)
+                                    near=True)
         good[good] &= self._straight(cells[good], points[good])
         taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
         if len(taken):
@@ -650,7 +650,7 @@ def _inside(xy: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return ((xy >= EDGE_MARGIN) & (xy <= np.array([w - 1, h - 1]) - EDGE_MARGIN)).all(1)
 
 
-def _altitude(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+def altitude(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """The lesser height of the parallelograms spanned by steps u, v (N, 2): a square's narrowest width."""
     return np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / np.maximum(np.hypot(*u.T), np.hypot(*v.T))
 
