@@ -43,6 +43,13 @@ class Sampler:
         return np.where(inside, total / ((x1 - x0) * (y1 - y0)), np.nan)
 
 
+def altitude(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The lesser height of the parallelograms spanned by steps u, v (N, 2): a square's narrowest
+    width (0 for zero-length steps)."""
+    longest = np.maximum(np.hypot(u[:, 0], u[:, 1]), np.hypot(v[:, 0], v[:, 1]))
+    return np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / np.maximum(longest, 1e-9)
+
+
 def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, reach: float = 0.125,
                 axes: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Grey levels of the 4 quads around corners p (K, 2), lattice steps u, v: each quad's median,
@@ -56,9 +63,7 @@ def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, r
     p = np.atleast_2d(p)
     if u.shape != p.shape or v.shape != p.shape:  # broadcast_to's cost shows on these small calls
         u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
-    cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
-    longest = np.maximum(np.hypot(u[:, 0], u[:, 1]), np.hypot(v[:, 0], v[:, 1]))
-    radius = np.floor(0.12 * cross / np.maximum(longest, 1e-9)).astype(np.int64)  # well inside a square
+    radius = np.floor(0.12 * altitude(u, v)).astype(np.int64)  # well inside a square
     # (S, K, 2): reach x (0, u + v, -(u + v), u - v, v - u), then axes x (u, -u, v, -v), as one product
     # over the basis (u + v, u - v, u, v) (its coefficients are 0 and +-1, so each offset is exact)
     coefficients = _sample_offsets(reach, axes)

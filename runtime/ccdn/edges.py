@@ -31,7 +31,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .grid import Board, altitude
+from .checker import altitude
+from .grid import Board
+from .refine import kernel_size
 from .stats import median, nanmedian_rows
 
 NOISY_SIGMA = 5.0  # grey levels of image noise from which board corners are refined on their edges
@@ -48,7 +50,6 @@ ITERATIONS = 2  # fits, each resampling around the corner the last one moved; la
 # stress renders, 88878 corners, mean error after 1 / 2 / 3 / 5 fits: 0.0235 / 0.0225 / 0.0242 / 0.0262 px,
 # motion blur 0.021 / 0.019 / 0.026 / 0.038; deep shade 0.051 / 0.055 / 0.054 / 0.054, p95 0.19 / 0.15 / 0.18 / 0.19)
 MAX_MOVE = 1.0  # px from the saddle-fit position; farther and the corner keeps that position
-_KERNEL_RADIUS = 4  # px: OpenCV's Gaussian kernel for SMOOTHING on float images (9 taps)
 FLAT_BOARD = 0.01  # of the median lattice step: a board whose corners a homography fits this well (the median
 # residual) has straight lines (stress renders' boards: pinhole lenses <= 0.006, fisheye lenses >= 0.03)
 MIN_ASPECT = 0.4  # a corner's narrowest square width over its longer step: thinner squares keep the saddle fit
@@ -146,11 +147,12 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, lengths: np.ndarray):
     longest step, the profile's half-width, MAX_MOVE, the interpolation and the kernel's reach,
     so the crop's values there equal the whole frame's."""
     h, w = gray.shape
-    reach = REACH[1] * np.nanmax(lengths, initial=0.0) + HALF_WIDTH + MAX_MOVE + 1 + _KERNEL_RADIUS
+    size = kernel_size(SMOOTHING)
+    reach = REACH[1] * np.nanmax(lengths, initial=0.0) + HALF_WIDTH + MAX_MOVE + 1 + size // 2
     x0, y0 = (max(0, int(v)) for v in np.floor(xy.min(0) - reach))
     x1, y1 = (int(v) for v in np.minimum(np.ceil(xy.max(0) + reach) + 1, (w, h)))
     x1, y1 = max(x1, x0 + 1), max(y1, y0 + 1)
-    image = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (0, 0), SMOOTHING)
+    image = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (size, size), SMOOTHING)
     return image, np.array([x0, y0], np.float64), (-x0, -y0, w - 1 - x0, h - 1 - y0)
 
 

@@ -97,8 +97,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, pair_differences, quad_differences, quad_levels, quad_spread,
-                      x_like)
+from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differences, quad_differences, quad_levels,
+                      quad_spread, x_like)
 from .refine import refine_saddle_points, window_for_spacing
 from .stats import median, nanmedian_rows
 
@@ -648,11 +648,6 @@ def _inside(xy: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """(N,) whether points xy (N, 2) lie at least EDGE_MARGIN px inside a frame of `shape` (H, W)."""
     h, w = shape[:2]
     return ((xy >= EDGE_MARGIN) & (xy <= np.array([w - 1, h - 1]) - EDGE_MARGIN)).all(1)
-
-
-def altitude(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The lesser height of the parallelograms spanned by steps u, v (N, 2): a square's narrowest width."""
-    return np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / np.maximum(np.hypot(*u.T), np.hypot(*v.T))
 
 
 def _shorter(u: np.ndarray, v: np.ndarray) -> np.ndarray:

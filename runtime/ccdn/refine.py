@@ -312,7 +312,7 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
         patches[:, cut] *= row_in[cut].T[:, :, None] & col_in[cut][None]
     wide = patches.reshape(side, n * side)  # one blur for all: a patch's margin absorbs its neighbours'
     if sigma > 0:
-        wide = cv2.GaussianBlur(wide, (_kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
+        wide = cv2.GaussianBlur(wide, (kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
         if cut.any():  # normalised convolution where the frame's edge cuts a patch (_blur_inside)
             row_mass, col_mass = (_mass_inside(inside[cut], sigma) for inside in (row_in, col_in))
             blurred = wide.reshape(side, n, side)
@@ -322,8 +322,9 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     return _Smoothed(wide, corner - low, low, low + side - 1, (h, w))
 
 
-def _kernel_size(sigma: float) -> int:
-    """cv2.GaussianBlur's kernel size for sigma: odd, covering +-4 sigma."""
+def kernel_size(sigma: float) -> int:
+    """cv2.GaussianBlur's kernel size for sigma on float images (what it picks for ksize (0, 0)): odd,
+    covering +-4 sigma."""
     return int(round(8 * sigma + 1)) | 1
 
 
@@ -332,7 +333,7 @@ def _blur_inside(part: np.ndarray, sigma: float) -> np.ndarray:
     or repeating the edge, as usual borders do, would pull a corner near the frame's edge towards
     its mirror image (measured: 1-1.7 px off at 2 px from the edge). The normaliser is separable
     and differs from 1 only within the kernel's reach of an edge, so only those bands are divided."""
-    blurred = cv2.GaussianBlur(part, (_kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
+    blurred = cv2.GaussianBlur(part, (kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
     rows, cols = (_mass_inside(np.ones((1, n), bool), sigma)[0] for n in part.shape)
     top, left = np.nonzero(np.abs(rows - 1) > 1e-6)[0], np.nonzero(np.abs(cols - 1) > 1e-6)[0]
     blurred[top] /= rows[top, None]
@@ -344,7 +345,7 @@ def _mass_inside(inside: np.ndarray, sigma: float) -> np.ndarray:
     """(K, n) float32: along each of K lines of n pixels (inside: (K, n) bool), the share of the
     blur's 1-D kernel that falls on inside pixels at each position: the separable normaliser of a
     blur that averages only pixels inside (a region's edges, or the frame's edge across a patch)."""
-    kernel = cv2.getGaussianKernel(_kernel_size(sigma), sigma, cv2.CV_64F).reshape(1, -1)
+    kernel = cv2.getGaussianKernel(kernel_size(sigma), sigma, cv2.CV_64F).reshape(1, -1)
     return cv2.filter2D(inside.astype(np.float64), -1, kernel, borderType=cv2.BORDER_CONSTANT).astype(np.float32)
 
 
