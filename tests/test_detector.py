@@ -324,3 +324,22 @@ def test_corners_under_a_shadows_edge_are_completed():
     assert len(scene.corners) == 77
     assert (nearest_distances(found, scene.corners) < 1.5).sum() >= 63
     assert (nearest_distances(scene.corners, found) < 1.5).all()  # every corner found is a true one
+
+
+def test_a_board_continues_past_a_line_the_shadows_edge_hides():
+    """A shadow's sharp edge along a row of corners darkens two quads of each: that row fails the
+    image test, and growth and completion, which step one position at a time, stopped there (the
+    stress set's shadow render 7160200: 17 of 27 corners, the lit part; the network on the halved
+    frame gives no peaks in the shade). Completion also asks the image two positions out, past such a
+    line, where the quads alternate at their centres (ccdn.grid's _beyond): 21 now, the 4 more in
+    the shade, in the same board, every one a true corner."""
+    from conftest import stress_scene
+
+    scene = stress_scene("shadow", 7_160_200)
+    found = ccdn.Detector(threads=2).detect(scene.image)
+    assert len(scene.corners) == 27 and len(found.boards) == 1
+    board = found.boards[0]
+    assert (nearest_distances(scene.corners, board.xy) < 1.5).all()  # every corner found is a true one
+    assert (nearest_distances(board.xy, scene.corners) < 1.5).sum() >= 21
+    lines = [np.unique(board.grid[:, axis]) for axis in (0, 1)]
+    assert any(np.diff(line).max() == 2 for line in lines)  # corners on both sides of an empty line

@@ -63,7 +63,7 @@ def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, r
     p = np.atleast_2d(p)
     if u.shape != p.shape or v.shape != p.shape:  # broadcast_to's cost shows on these small calls
         u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
-    radius = np.floor(0.12 * altitude(u, v)).astype(np.int64)  # well inside a square
+    radius = _box_radius(u, v)
     # (S, K, 2): reach x (0, u + v, -(u + v), u - v, v - u), then axes x (u, -u, v, -v), as one product
     # over the basis (u + v, u - v, u, v) (its coefficients are 0 and +-1, so each offset is exact)
     coefficients = _sample_offsets(reach, axes)
@@ -78,6 +78,19 @@ def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, r
     samples = sampler.mean(centre[:, None] + offsets[None], radius)  # (4 quads, S samples, K)
     # fmin / fmax skip NaN samples (off the image) without nanmax's warnings; all-NaN stays NaN
     return np.sort(samples, axis=1)[:, n // 2], np.fmin.reduce(samples, 1), np.fmax.reduce(samples, 1)
+
+
+def quad_means(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(4, K): the mean grey level of one box at each quad's centre around corners p (K, 2), lattice
+    steps u, v (K, 2), in quad_levels' order: a cheaper look than its 5 samples per quad (NaN off
+    the image)."""
+    step = _QUAD_SIGNS[:, :, 0] * u[None] + _QUAD_SIGNS[:, :, 1] * v[None]  # (4, K, 2)
+    return sampler.mean(p[None] + step / 2, _box_radius(u, v))
+
+
+def _box_radius(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(K,) int: the radius of the boxes sampled in quads of steps u, v: well inside a square."""
+    return np.floor(0.12 * altitude(u, v)).astype(np.int64)
 
 
 def pair_differences(levels: np.ndarray) -> np.ndarray:
