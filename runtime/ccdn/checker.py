@@ -70,7 +70,7 @@ def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, r
     n = len(coefficients)
     basis = np.stack([u + v, u - v, u, v]).reshape(4, -1)
     offsets = (coefficients @ basis).reshape(n, len(p), 2)
-    step = _QUAD_SIGNS[:, :, 0] * u[None] + _QUAD_SIGNS[:, :, 1] * v[None]  # (4, K, 2)
+    step = _quad_steps(u, v)
     centre = p[None] + step / 2
     off = ~sampler.contains(centre.reshape(-1, 2)).reshape(4, -1)
     if off.any():
@@ -84,8 +84,12 @@ def quad_means(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) ->
     """(4, K): the mean grey level of one box at each quad's centre around corners p (K, 2), lattice
     steps u, v (K, 2), in quad_levels' order: a cheaper look than its 5 samples per quad (NaN off
     the image)."""
-    step = _QUAD_SIGNS[:, :, 0] * u[None] + _QUAD_SIGNS[:, :, 1] * v[None]  # (4, K, 2)
-    return sampler.mean(p[None] + step / 2, _box_radius(u, v))
+    return sampler.mean(p[None] + _quad_steps(u, v) / 2, _box_radius(u, v))
+
+
+def _quad_steps(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(4, K, 2): the diagonal steps +u+v, +u-v, -u+v, -u-v from a corner across its quads."""
+    return _QUAD_SIGNS[:, :, 0] * u[None] + _QUAD_SIGNS[:, :, 1] * v[None]
 
 
 def _box_radius(u: np.ndarray, v: np.ndarray) -> np.ndarray:
