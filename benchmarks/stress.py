@@ -41,6 +41,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from ccdn.checker import altitude
 from ccdn.models import DEFAULT_HELP
 from ccdn_training.synth import PAPER_BOARDS, Scene, SceneConfig, render_scene
 from tqdm import tqdm
@@ -105,15 +106,15 @@ def square_widths(scene: Scene) -> np.ndarray:
     """(M,) per labelled corner, the narrowest width across of the squares around it that the labels
     span (a cell's lesser parallelogram height: a steep view thins squares to slivers); inf where none."""
     index = {(b, r, c): k for k, (b, (r, c)) in enumerate(zip(scene.board_index.tolist(), scene.grid.tolist()))}
-    widths = np.full(len(scene.corners), np.inf)
+    corner, along_rows, along_cols = [], [], []  # each labelled cell: its corner and its two neighbours
     for k, (b, (r, c)) in enumerate(zip(scene.board_index.tolist(), scene.grid.tolist())):
         for dr, dc in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
-            along_rows, along_cols = index.get((b, r + dr, c)), index.get((b, r, c + dc))
-            if along_rows is None or along_cols is None:
-                continue
-            u, v = scene.corners[along_rows] - scene.corners[k], scene.corners[along_cols] - scene.corners[k]
-            area = abs(float(u[0] * v[1] - u[1] * v[0]))
-            widths[k] = min(widths[k], area / max(np.hypot(*u), np.hypot(*v)))
+            if (b, r + dr, c) in index and (b, r, c + dc) in index:
+                corner.append(k), along_rows.append(index[(b, r + dr, c)]), along_cols.append(index[(b, r, c + dc)])
+    widths = np.full(len(scene.corners), np.inf)
+    if corner:
+        xy = scene.corners.astype(np.float64)
+        np.minimum.at(widths, corner, altitude(xy[along_rows] - xy[corner], xy[along_cols] - xy[corner]))
     return widths
 
 

@@ -75,7 +75,8 @@ def stress_scene(subset: str, seed: int):
 
     from ccdn_training.synth import SceneConfig, render_scene
 
-    sys.path.insert(0, str(ROOT / "benchmarks"))
+    if str(ROOT / "benchmarks") not in sys.path:
+        sys.path.insert(0, str(ROOT / "benchmarks"))
     from stress import CALM, SUBSETS
 
     return render_scene(np.random.default_rng(seed), SceneConfig(**{**CALM, **SUBSETS[subset]}))

@@ -537,6 +537,7 @@ class _Grower:
         there where a line of a board's corners fails the image test, e.g. under a shadow's sharp
         edge, which darkens two of their quads (the line left between becomes holes)."""
         _, tol, u, v = support
+        uv = np.concatenate([u, v], 1)
         targets, preds, tols, steps = [], [], [], []
         for dr, dc in _DIRECTIONS:
             p1 = self._gather(cells[:, 0] + dr, cells[:, 1] + dc)
@@ -548,7 +549,7 @@ class _Grower:
             targets.append(target[ok])
             preds.append((3 * p1 - 2 * p2)[ok])
             tols.append(tol[ok])
-            steps.append(np.concatenate([u, v], 1)[ok])
+            steps.append(uv[ok])
         targets, preds, tols, steps = (np.concatenate(part) for part in (targets, preds, tols, steps))
         first = np.sort(_first_of_each_cell(targets, self.idx.shape[1]))
         return targets[first], (preds[first], tols[first], steps[first, :2], steps[first, 2:])
