@@ -58,6 +58,19 @@ def nearest_distances(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.linalg.norm(truth[:, None] - found[None].astype(np.float64), axis=2).min(1)
 
 
+ROTATIONS = [np.array(m) for m in ([[1, 0], [0, 1]], [[0, -1], [1, 0]], [[-1, 0], [0, -1]], [[0, 1], [-1, 0]])]
+
+
+def index_map(board, true_grid: np.ndarray) -> np.ndarray | None:
+    """The proper rotation R with found = R @ true + offset for every corner of a ccdn.grid.Board
+    (true_grid: its corners' true (row, col)), or None if there is none."""
+    for rot in ROTATIONS:
+        offset = board.grid - true_grid @ rot.T
+        if (offset == offset[0]).all():
+            return rot
+    return None
+
+
 def calm_scene(seed: int, **changes):
     """A render of one board without lens, blur, noise or lighting effects (ccdn_training.synth),
     with `changes` to its SceneConfig."""

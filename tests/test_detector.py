@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import ccdn
-from conftest import nearest_distances
+from conftest import index_map, nearest_distances
 
 
 def test_runtime_never_imports_torch_or_training_code():
@@ -343,3 +343,21 @@ def test_a_board_continues_past_a_line_the_shadows_edge_hides():
     assert (nearest_distances(board.xy, scene.corners) < 1.5).sum() >= 21
     lines = [np.unique(board.grid[:, axis]) for axis in (0, 1)]
     assert any(np.diff(line).max() == 2 for line in lines)  # corners on both sides of an empty line
+
+
+def test_a_steep_views_narrow_squares_complete_without_taking_the_tips_between_them():
+    """A board tilted ~70 degrees: sheared squares 4.5-6 px across, the network's peaks on part of
+    them (the stress set's extreme-pose render 7100011: 40 of 156 corners before). Completion's saddle
+    fit gets the narrow window's second try there (ccdn.grid.NARROW_ALTITUDE), and growth matches
+    within 1.5 x the cells' height, not 0.3 of their long step (SLIVER_REACH), which a tip between two
+    squares of one colour lay within: without it the board took 38 such tips, wrongly indexed."""
+    from conftest import stress_scene
+
+    scene = stress_scene("extreme-pose", 7_100_011)
+    found = ccdn.Detector(threads=2).detect(scene.image)
+    assert len(scene.corners) == 156 and len(found.boards) == 1
+    board = found.boards[0]
+    distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+    assert (distance.min(1) < 2.5).all()  # every corner found is a true one (the tips lay 3.4-5 px off)
+    assert len(board) >= 100
+    assert index_map(board, scene.grid[distance.argmin(1)]) is not None

@@ -16,6 +16,7 @@ import pytest
 
 from ccdn.checker import Sampler
 from ccdn.grid import Board, _Grower, find_boards, nearest_neighbours
+from conftest import index_map
 
 synth = pytest.importorskip("ccdn_training.synth")
 
@@ -23,7 +24,6 @@ REAL_DEV = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "rea
 CLEAN = dict(p_no_board=0.0, p_two_boards=0.0, p_occluder=0.0, p_blur=0.0, p_motion=0.0, p_defocus=0.0,
              noise_sigma=(0.0, 0.01), p_jpeg=0.0, p_low_contrast=0.0, p_dark=0.0, p_glare=0.0, p_shadow=0.0,
              square_px=(18.0, 45.0), max_tilt_deg=45.0, p_radial=0.0, p_fisheye=0.0)
-ROTATIONS = [np.array(m) for m in ([[1, 0], [0, 1]], [[0, -1], [1, 0]], [[-1, 0], [0, -1]], [[0, 1], [-1, 0]])]
 
 
 @lru_cache(maxsize=None)
@@ -42,15 +42,6 @@ def whole_boards(n: int, **changes) -> list[synth.Scene]:
 def with_false_points(scene: synth.Scene, n: int, seed: int) -> np.ndarray:
     h, w = scene.image.shape
     return np.concatenate([scene.corners, np.random.default_rng(seed).random((n, 2)) * [w, h]]).astype(np.float32)
-
-
-def index_map(board: Board, true_grid: np.ndarray) -> np.ndarray | None:
-    """The proper rotation R with found = R @ true + offset for every corner, or None if there is none."""
-    for rot in ROTATIONS:
-        offset = board.grid - true_grid @ rot.T
-        if (offset == offset[0]).all():
-            return rot
-    return None
 
 
 def true_part(board: Board, scene: synth.Scene) -> tuple[Board, np.ndarray]:

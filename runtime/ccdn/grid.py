@@ -20,7 +20,8 @@ step anywhere, as under lens distortion, stops this). Then position by
 position: each empty neighbour of the grid is predicted from the grid (along a row or column from
 the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms with
 diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of the
-shorter local lattice step is taken if it passes the image test. No corner is taken where the
+shorter local lattice step (or of 1.5 x the cell's lesser height, where that is less: SLIVER_REACH)
+is taken if it passes the image test. No corner is taken where the
 local steps are flatter than a seed's may be (the sine of their angle at most MIN_SINE, in every
 growth step): on the slivers of boards tilted 60-75 degrees the tips where two squares of one colour
 nearly touch score like corners, and a lattice of such tips passed the image test (a stress render:
@@ -113,8 +114,15 @@ SEED_NEIGHBOURS = 12  # a seed's square is sought among these nearest corners ..
 SEED_REACH = 24  # ... and its fourth corner among these
 SEED_CHUNK = 256  # seeds checked at once
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
-TOLERANCE = 0.3  # of the shorter local lattice step
-NARROW_ALTITUDE = 1.5  # squares narrower than this many fit windows get the narrow window's second fit (refine)
+TOLERANCE = 0.3  # of the shorter local lattice step ...
+SLIVER_REACH = 1.5  # ... or of this x the cell's lesser height (altitude), where less: on a sheared sliver
+# (steps 12-16 px, 4-5 px across) a tip where two squares of one colour nearly touch lies within 0.3 of the
+# step of a true corner, and position-by-position growth took tips the network scored as corners, one
+# after another (extreme-pose stress render 7100011 once its narrow squares completed: a wrongly indexed board
+# and 38 false corners; 1.0 lost corners elsewhere, 2.0 still took the tips)
+NARROW_ALTITUDE = 2.0  # squares narrower than this many fit windows get the narrow window's second fit (refine):
+# 1.5 left completion unable to fit the 4.5-6 px wide squares of steep views (stress extreme-pose renders: 820 ->
+# 681 missed of 5449 corners over 80 renders, together with SLIVER_REACH; 2.5 the same as 2.0)
 MIN_SINE = 0.3  # of the angle between the lattice steps: flatter cells are too sheared to sample
 MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sharper turn is a wrong corner ...
 KINK_PX = 2.0  # ... where it also moves the shorter step's end this far (small squares' corner error turns steps)
@@ -495,9 +503,10 @@ class _Grower:
         return True
 
     def _support(self, cells: np.ndarray):
-        """Predictions, tolerances (TOLERANCE x the shorter local step) and steps u, v for cells."""
+        """Predictions, tolerances (TOLERANCE x the shorter local step, or x SLIVER_REACH x the cell's
+        lesser height where less) and steps u, v for cells."""
         u, v = self._axes(cells)
-        tol = TOLERANCE * _shorter(u, v)
+        tol = TOLERANCE * np.minimum(_shorter(u, v), SLIVER_REACH * altitude(u, v))
         preds = self._predict(cells)
         tol[~np.isfinite(preds).all(1)] = np.nan
         return preds, tol, u, v
