@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REAL_DEV
+from conftest import REAL_DEV, stress_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,8 +58,6 @@ def test_square_widths_tell_a_steep_views_slivers_from_a_calm_boards_squares():
     """The stress set's extreme-pose render 7100061 is a board seen almost edge-on: 2-3 px across its
     squares (measured), though its corners lie 4.6-13 px apart; a calm board's squares are as wide as
     its corners are apart."""
-    from conftest import stress_scene
-
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from stress import square_widths
 

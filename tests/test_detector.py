@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import ccdn
-from conftest import index_map, nearest_distances
+from conftest import index_map, nearest_distances, stress_scene
 
 
 def test_runtime_never_imports_torch_or_training_code():
@@ -271,8 +271,6 @@ def test_a_coarse_pass_lets_refinement_walk_three_shrunk_pixels_from_a_peak():
     """`fast`'s peaks on a shrunk frame can lie ~2 shrunk px off (its 4x4-pixel output cells): this
     corner of a partial board 3.6 px from the frame's edge has its halved-frame peak 4.1 px away
     (measured), beyond the 2-shrunk-pixel walk allowed before, and was missed."""
-    from conftest import stress_scene
-
     scene = stress_scene("partial", 7_130_015)
     corner = np.array([[48.0, 476.4]])
     assert nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, corner)[0] < 0.1
@@ -283,8 +281,6 @@ def test_a_steep_boards_narrow_squares_are_completed():
     then spans the neighbouring corners' edges and finds no saddle: on the stress set's extreme-pose
     render 7100104 grid completion found 15 of 54 corners (measured). Predicted corners of squares
     narrower than ccdn.grid.NARROW_ALTITUDE windows are fitted again with the narrowest window."""
-    from conftest import stress_scene
-
     scene = stress_scene("extreme-pose", 7_100_104)
     found = ccdn.Detector(threads=2).detect(scene.image).xy
     assert (nearest_distances(found, scene.corners) < 1.5).sum() >= 48
@@ -298,8 +294,6 @@ def test_a_board_is_not_grown_into_cells_flatter_than_a_seed_square():
     on the stress set's extreme-pose render 7100021, 16 of a 25-corner board's corners lay 2-4 px
     from every true corner. A steep board whose cells stay above that (render 7100050, sines down to
     0.45) is still found whole."""
-    from conftest import stress_scene
-
     detector = ccdn.Detector(threads=2)
     sliver = stress_scene("extreme-pose", 7_100_021)
     found = detector.detect(sliver.image).xy
@@ -317,8 +311,6 @@ def test_corners_under_a_shadows_edge_are_completed():
     corners missed, measured). The test also passes on the quads sampled close to the corner, where
     the light varies less, if the corner's contrast shows it lies in other light than the seed's
     (ccdn.grid.SHADED_CONTRAST)."""
-    from conftest import stress_scene
-
     scene = stress_scene("shadow", 7_160_017)
     found = ccdn.Detector(threads=2).detect(scene.image).xy
     assert len(scene.corners) == 77
@@ -333,8 +325,6 @@ def test_a_board_continues_past_a_line_the_shadows_edge_hides():
     frame gives no peaks in the shade). Completion also asks the image two positions out, past such a
     line, where the quads alternate at their centres (ccdn.grid's _beyond): 21 now, the 4 more in
     the shade, in the same board, every one a true corner."""
-    from conftest import stress_scene
-
     scene = stress_scene("shadow", 7_160_200)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 27 and len(found.boards) == 1
@@ -351,8 +341,6 @@ def test_a_steep_views_narrow_squares_complete_without_taking_the_tips_between_t
     fit gets the narrow window's second try there (ccdn.grid.NARROW_ALTITUDE), and growth matches
     within 1.5 x the cells' height, not 0.3 of their long step (SLIVER_REACH), which a tip between two
     squares of one colour lay within: without it the board took 38 such tips, wrongly indexed."""
-    from conftest import stress_scene
-
     scene = stress_scene("extreme-pose", 7_100_011)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 156 and len(found.boards) == 1

@@ -16,7 +16,7 @@ import pytest
 
 from ccdn.checker import Sampler
 from ccdn.grid import Board, _Grower, find_boards, nearest_neighbours
-from conftest import index_map
+from conftest import calm_scene, index_map, nearest_distances, stress_scene
 
 synth = pytest.importorskip("ccdn_training.synth")
 
@@ -382,8 +382,6 @@ def test_the_last_visible_corner_of_a_board_cut_by_the_frame_is_kept():
     """A corner with a single row/column neighbour is kept where the frame cuts the board (another
     neighbour would lie off the frame): partial boards lost such corners to the outline pruning."""
     import ccdn
-    from conftest import calm_scene
-
     detector = ccdn.Detector(threads=2)
     lone = found = 0
     for seed in range(30):
@@ -406,8 +404,6 @@ def test_holes_are_completed_once_their_neighbours_are_in():
     grid's predictions, and a fit that failed while a hole was predicted from one side is tried again
     once its other sides are filled (these renders kept 12 and 5 holes before)."""
     import ccdn
-    from conftest import calm_scene, nearest_distances
-
     detector = ccdn.Detector(threads=2)
     for seed in (14, 27):
         scene = calm_scene(seed, p_motion=1.0)
@@ -454,8 +450,6 @@ def test_a_board_does_not_wander_off_its_lattice_where_its_lines_would_turn_shar
     corners, 23 of them tips 2.8-5 px from any true corner, its rows turning by up to 100 degrees.
     Lines may turn no more than ccdn.grid.MAX_TURN: what is left is the true lattice, indexed as it is."""
     import ccdn
-    from conftest import stress_scene
-
     scene = stress_scene("extreme-pose", 7_100_011)
     (board,) = ccdn.Detector(threads=2).detect(scene.image).boards
     kept, label = true_part(board, scene)
@@ -472,8 +466,6 @@ def test_a_board_does_not_take_corners_of_the_board_beside_it(seed):
     quads uniform where a seed's are sampled (ccdn.grid.WIDE_SPREAD): every board holds corners of
     one true board only, indexed as they are."""
     import ccdn
-    from conftest import stress_scene
-
     scene = stress_scene("two-boards", seed)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert len(boards) == 2
@@ -494,8 +486,6 @@ def test_a_board_half_in_deep_shadow_is_one_board(seed, detected):
     all 60 and of 73 of the 77 (4 on the shadow's edge are missed); before, boards of 28 + 21 and
     28 + 24 + 13 corners."""
     import ccdn
-    from conftest import stress_scene
-
     scene = stress_scene("shadow", seed)
     (board,) = find_boards(scene.image, scene.corners, np.ones(len(scene.corners)), complete=True)
     assert len(board) == len(scene.corners)
@@ -512,8 +502,6 @@ def test_where_the_frame_cuts_a_board_its_outline_gives_no_corner():
     labels leave them out too): every corner found is a true one."""
     import ccdn
     from ccdn.grid import EDGE_MARGIN
-    from conftest import stress_scene
-
     scene = stress_scene("partial", 7_130_009)
     h, w = scene.image.shape
     found = ccdn.Detector(threads=2).detect(scene.image).xy
