@@ -47,7 +47,16 @@ same tolerance) and taken if it passes the ring test and the strict image test, 
 of its quad pairs on the image (one pair alone, at the
 frame's edge, is what a board's outline shows too). This recovers the corners the network scored
 too low (shadowed, blurred, or first found on a downscaled frame); such corners get indices >=
-len(xy), in order of addition. When that adds nothing, completion also asks the image two
+len(xy), in order of addition. A slope in the grey levels shifts a saddle fit's point by slope /
+contrast, so under a soft shadow, whose light falls off across a corner faster than the shaded
+squares differ, the fit found no saddle: where it fails at a prediction whose quads look like the
+board's in shade (lower contrast than the seed's, yet a larger share of the board's on the log
+scale than on the grey scale: shade multiplies grey levels, a board's outline against a mid-grey
+background loses both alike), it is fitted again on the log scale of grey, where the shade's
+factor is an offset and the squares keep the lit ones' contrast (stress shadow renders: 150 -> 109
+of 3819 corners missed over 60 renders, those found 0.13 px off the truth (median); 1440 renders
+of the other subsets: 3 occluded corners more, no false positive more; without the log-scale share,
+a board's outline took a false corner). When that adds nothing, completion also asks the image two
 positions beyond the frontier along rows and columns, where the four quads alternate in the
 board's sign at their centres (one box each, a cheap look before the strict test): a shadow's sharp
 edge along a line of corners darkens two quads of each, so that line fails the test, and the board
@@ -150,6 +159,9 @@ EDGE_MARGIN = 1.5  # px: a corner closer to the frame's edge joins no board: the
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
 SHADED_CONTRAST = 0.85  # completion's strict test also passes on the quads sampled NEAR_QUADS of the way where
 # their grey-level contrast is below this x the seed's (or above 1 / this): a corner in other light than the seed's
+_LOG_GREY = (255 * np.log1p(np.arange(256) / SHADE_OFFSET) / np.log1p(255 / SHADE_OFFSET)).astype(np.float32)
+_LOG_GREY.setflags(write=False)  # grey level -> log(grey + SHADE_OFFSET), stretched back onto 0..255 so that
+# the saddle fit's min_saddle (grey levels / px^2) keeps its meaning: completion's fit in shade (module docstring)
 _PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
 # the pairs (quad_differences' columns) that leave each quad out
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
@@ -203,6 +215,7 @@ class _Grower:
         self.xy, self.free, self.sampler = xy, free.copy(), sampler
         self.gaps = gaps  # each corner's distance to the nearest other one (find_boards' nearest_neighbours)
         self.gray = gray  # given: complete the grid from the image (module docstring)
+        self.log_gray: np.ndarray | None = None  # gray on the log scale, made when completion needs it
         self.occupied = np.zeros((0, 2)) if occupied is None else occupied  # earlier boards' corners
         self.first_added = first_added  # index of this grower's first added corner
         self.added: list[np.ndarray] = []
@@ -477,9 +490,12 @@ class _Grower:
             return False
         typical = float(median(tol))
         radius = window_for_spacing(typical / TOLERANCE)
-        points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, max_shift=float(tol.max()),
-                                            wide=int(np.clip(typical, radius + 2, 8)),
-                                            narrow=altitude(u, v) < NARROW_ALTITUDE * radius)
+        narrow = altitude(u, v) < NARROW_ALTITUDE * radius
+        fit = {"max_shift": float(tol.max()), "wide": int(np.clip(typical, radius + 2, 8))}
+        points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, narrow=narrow, **fit)
+        if (shaded := ~good & self._in_shade(cells, preds, u, v)).any():  # the fit again on the log scale
+            points[shaded], good[shaded] = refine_saddle_points(self._log_gray(), preds[shaded], radius, 0.4 * radius,
+                                                                narrow=narrow[shaded], **fit)
         points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
@@ -501,6 +517,28 @@ class _Grower:
         self.added.extend(points[keep])
         self._place(cells[keep] - self.origin, np.arange(first, first + len(keep)))
         return True
+
+    def _in_shade(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(K,) whether the quads around points (canvas cells, steps u, v) look like the board's in
+        shade: their contrast below SHADED_CONTRAST x the seed's on the grey scale, and a larger share
+        of the board's on the log scale (SHADE_OFFSET; the median over up to 32 of its corners) than
+        on the grey scale: shade multiplies grey levels, which cancels on the log scale, while a
+        board's outline against a mid-grey background loses contrast on both."""
+        sign = self._signs(cells)[:, None]
+        levels = quad_levels(self.sampler, points, u, v)[0]
+        grey = nanmedian_rows(pair_differences(levels) * sign) / self.contrast
+        board = np.argwhere(self.idx >= 0)[:32]
+        board_levels = quad_levels(self.sampler, self.pos[board[:, 0], board[:, 1]], *self._axes(board))[0]
+        board_log = nanmedian_rows(pair_differences(np.log(board_levels + SHADE_OFFSET)) * self._signs(board)[:, None])
+        board_log = nanmedian_rows(board_log[None])[0]  # NaN rows: corners without a quad pair on the image
+        log = nanmedian_rows(pair_differences(np.log(levels + SHADE_OFFSET)) * sign) / board_log
+        return (grey < SHADED_CONTRAST) & (log > grey)
+
+    def _log_gray(self) -> np.ndarray:
+        """The frame's grey levels on the log scale (_LOG_GREY), made at the first call."""
+        if self.log_gray is None:
+            self.log_gray = cv2.LUT(self.gray, _LOG_GREY)
+        return self.log_gray
 
     def _support(self, cells: np.ndarray):
         """Predictions, tolerances (TOLERANCE x the shorter local step, or x SLIVER_REACH x the cell's

@@ -132,7 +132,8 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     and no re-fits of corners near the frame's edge with smaller windows. `narrow`: (N,) mask of
     corners that, where this fit fails, are fitted again from their start with the narrowest window
     (NARROW_RADIUS): a steep view's squares can be narrower than the window, which then spans the
-    neighbouring corners' edges and finds no saddle.
+    neighbouring corners' edges and finds no saddle. gray: uint8, or float32 grey levels on another
+    scale (ccdn.grid fits corners in shade on the log scale), min_saddle then in its units.
 
     Returns refined xy (N, 2) float32 and a converged mask (N,) bool.
     """
