@@ -493,7 +493,10 @@ class _Grower:
         narrow = altitude(u, v) < NARROW_ALTITUDE * radius
         fit = {"max_shift": float(tol.max()), "wide": int(np.clip(typical, radius + 2, 8))}
         points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, narrow=narrow, **fit)
-        if (shaded := ~good & self._in_shade(cells, preds, u, v)).any():  # the fit again on the log scale
+        shaded = ~good
+        if shaded.any():  # failed fits where the quads look like the board's in shade: again on the log scale
+            shaded[shaded] = self._in_shade(cells[shaded], preds[shaded], u[shaded], v[shaded])
+        if shaded.any():
             points[shaded], good[shaded] = refine_saddle_points(self._log_gray(), preds[shaded], radius, 0.4 * radius,
                                                                 narrow=narrow[shaded], **fit)
         points = points.astype(np.float64)
