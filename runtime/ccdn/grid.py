@@ -332,7 +332,7 @@ class _Grower:
             ok = self._alternate(levels, sign, strict)
             if near and (again := ~ok & on_image & square).any():
                 levels = quad_levels(self.sampler, points[again], NEAR_QUADS * u[again], NEAR_QUADS * v[again])
-                contrast = nanmedian_rows(pair_differences(levels[0]) * sign[again, None]) / self.contrast
+                contrast = _contrast(levels[0], sign[again]) / self.contrast
                 shaded = (contrast < SHADED_CONTRAST) | (contrast > 1 / SHADED_CONTRAST)
                 ok[again] = self._alternate(levels, sign[again], strict) & shaded
             return ok & on_image & square
@@ -527,15 +527,14 @@ class _Grower:
         of the board's on the log scale (SHADE_OFFSET; the median over up to 32 of its corners) than
         on the grey scale: shade multiplies grey levels, which cancels on the log scale, while a
         board's outline against a mid-grey background loses contrast on both."""
-        sign = self._signs(cells)[:, None]
+        sign = self._signs(cells)
         levels = quad_levels(self.sampler, points, u, v)[0]
-        grey = nanmedian_rows(pair_differences(levels) * sign) / self.contrast
+        grey = _contrast(levels, sign) / self.contrast
         board = np.argwhere(self.idx >= 0)[:32]
         board_levels = quad_levels(self.sampler, self.pos[board[:, 0], board[:, 1]], *self._axes(board))[0]
-        board_log = nanmedian_rows(pair_differences(np.log(board_levels + SHADE_OFFSET)) * self._signs(board)[:, None])
-        board_log = nanmedian_rows(board_log[None])[0]  # NaN rows: corners without a quad pair on the image
-        log = nanmedian_rows(pair_differences(np.log(levels + SHADE_OFFSET)) * sign) / board_log
-        return (grey < SHADED_CONTRAST) & (log > grey)
+        # the median over its corners, skipping those (NaN) without a quad pair on the image
+        board_log = nanmedian_rows(_contrast(board_levels, self._signs(board), log=True)[None])[0]
+        return (grey < SHADED_CONTRAST) & (_contrast(levels, sign, log=True) / board_log > grey)
 
     def _log_gray(self) -> np.ndarray:
         """The frame's grey levels on the log scale (_LOG_GREY), made at the first call."""
@@ -722,6 +721,15 @@ def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     i.setflags(write=False)
     j.setflags(write=False)
     return i, j
+
+
+def _contrast(levels: np.ndarray, sign: np.ndarray, log: bool = False) -> np.ndarray:
+    """(K,) the median difference of the quad pairs (pair_differences) of quad levels (4, K) in the
+    board's sign (K,) at each corner, on the grey scale or (log) the log scale (SHADE_OFFSET); NaN
+    where no pair is on the image."""
+    if log:
+        levels = np.log(levels + SHADE_OFFSET)
+    return nanmedian_rows(pair_differences(levels) * sign[:, None])
 
 
 def _inside(xy: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
