@@ -152,6 +152,7 @@ class Detector:
             boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape)
             xy, values, found = self._corners(gray, gray, 1, *self._peaks(self._session, gray, clock, boxes), boards,
                                               board_size, clock)
+        xy, found = self._on_edges(gray, xy, found, clock)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
                          found, clock.laps)
 
@@ -163,8 +164,9 @@ class Detector:
                 any_squares: bool = False):
         """The pass on `small`, gray shrunk `scale` times (_halvings): (xy, values, boards, its score
         map), xy, values and boards None when the squares are too small to trust there (judged first
-        on the peaks, before any refinement, then on the corners found: with any_squares, only on
-        the peaks) or no board is found."""
+        on the peaks, before any refinement, then on the corners found, before their edge-line
+        refinement, which a pass left to a finer one would waste: with any_squares, only on the
+        peaks) or no board is found."""
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
@@ -213,10 +215,15 @@ class Detector:
             if complete or board_size is not None:
                 refined, values, found = _keep_board_corners(refined, values, found)
             clock.lap("boards")
-            if complete and found and self.refinement == "saddle":
-                refined, found = _refined_on_edges(gray, refined, found, image_noise(gray) >= NOISY_SIGMA)
-                clock.lap("edges")
         return refined, values, found
+
+    def _on_edges(self, gray: np.ndarray, xy: np.ndarray, found: tuple[Board, ...], clock: _Clock):
+        """xy and boards, the boards' corners refined on their edge lines where the grid filter completed
+        them and the saddle fit refined them (_refined_on_edges)."""
+        if self.filter == "grid" and found and self.refinement == "saddle":
+            xy, found = _refined_on_edges(gray, xy, found, image_noise(gray) >= NOISY_SIGMA)
+            clock.lap("edges")
+        return xy, found
 
 
 def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...], score: np.ndarray, scale: int):
