@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import cv2
 import numpy as np
 import pytest
 
@@ -110,6 +111,32 @@ def test_finds_most_corners_of_a_real_photo(detector, real_dev):
     result = detector.detect(case["path"])
     d = nearest_distances(result.xy, case["corners"])
     assert (d < 5).mean() >= 0.9
+
+
+def test_a_coarse_pass_left_to_a_finer_one_fits_no_edge_lines(real_dev, monkeypatch):
+    """Real-dev's second photo (2000x1500): the 8x pass finds the board, but its squares are under
+    7 px there, so the 4x pass runs. The pass is judged before the edge-line refinement, which runs
+    once, on the kept pass's corners (it ran on both before), and every labelled corner is found."""
+    import ccdn.detector
+
+    case = real_dev[1]
+    gray = cv2.imread(str(case["path"]), cv2.IMREAD_GRAYSCALE)
+    assert gray.shape == (1500, 2000)
+    detector = ccdn.Detector(threads=2)
+    kept, refined = [], []
+    coarse, on_edges = ccdn.Detector._coarse, ccdn.detector._refined_on_edges
+    monkeypatch.setattr(ccdn.Detector, "_coarse", lambda self, gray, small, scale, *rest: _record(
+        kept, scale, coarse(self, gray, small, scale, *rest)))
+    monkeypatch.setattr(ccdn.detector, "_refined_on_edges", lambda *a: refined.append(len(a[1])) or on_edges(*a))
+    result = detector.detect(gray)
+    assert kept == [(8, False), (4, True)] and len(refined) == 1
+    assert (nearest_distances(result.xy, case["corners"]) < 1.0).all()
+
+
+def _record(log: list, scale: int, result: tuple):
+    """Log a coarse pass's scale and whether it was kept; return its result."""
+    log.append((scale, result[0] is not None))
+    return result
 
 
 def test_grid_filter_returns_boards_with_their_sizes(detector, examples):
