@@ -34,6 +34,7 @@ import numpy as np
 from .edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
 from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
+from .magnify import magnified, merge, thin_region, to_frame
 from .models import default_coarse_model
 from .peaks import find_peaks, kmeans_outliers, suppress
 from .regions import look_boxes
@@ -152,6 +153,7 @@ class Detector:
             boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape)
             xy, values, found = self._corners(gray, gray, 1, *self._peaks(self._session, gray, clock, boxes), boards,
                                               board_size, clock)
+            xy, values, found = self._magnified(gray, xy, values, found, boards, board_size, clock)
         xy, found = self._on_edges(gray, xy, found, clock)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
                          found, clock.laps)
@@ -217,6 +219,20 @@ class Detector:
             clock.lap("boards")
         return refined, values, found
 
+    def _magnified(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
+                   boards: bool, board_size, clock: _Clock):
+        """The full-frame pass's corners and boards, with boards found on the thin boards' surroundings
+        magnified in place of those they cover where they have more corners (ccdn.magnify). The
+        magnified pass runs the shrunk passes' model: corners lie MAGNIFICATION times farther apart there."""
+        region = thin_region(found, gray.shape) if self.filter == "grid" and self.refinement == "saddle" else None
+        if region is None:
+            return xy, values, found
+        big = magnified(gray, region)
+        more_xy, more_values, more_found = self._corners(big, big, 1, *self._peaks(self._coarse_session, big, clock),
+                                                         boards, board_size, clock)
+        more_found = tuple(dataclasses.replace(b, xy=_read_only(to_frame(b.xy, region))) for b in more_found)
+        return _keep_board_corners(*merge(xy, values, found, to_frame(more_xy, region), more_values, more_found))
+
     def _on_edges(self, gray: np.ndarray, xy: np.ndarray, found: tuple[Board, ...], clock: _Clock):
         """xy and boards, the boards' corners refined on their edge lines where the grid filter completed
         them and the saddle fit refined them (_refined_on_edges)."""
@@ -257,6 +273,11 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
         board_xy.setflags(write=False)
         refined.append(dataclasses.replace(board, xy=board_xy))
     return xy, tuple(refined)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
 
 
 def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):

@@ -207,6 +207,11 @@ class Board:
                 "grid": self.grid.tolist()}
 
 
+def largest_first(boards) -> list[Board]:
+    """Boards ordered largest first; ties: top, then left (their corners' mean position)."""
+    return sorted(boards, key=lambda b: (-len(b), float(b.xy[:, 1].mean()), float(b.xy[:, 0].mean())))
+
+
 class _Grower:
     """Grows one board from a seed square over the free corners."""
 
@@ -1010,7 +1015,7 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
         idx, grid = idx[order], grid[order].astype(np.int32)
         boards.append(Board(idx, grid, points[idx].astype(np.float32), int(grid[:, 1].max() + 1),
                             int(grid[:, 0].max() + 1)))
-    boards.sort(key=lambda b: (-len(b), float(b.xy[:, 1].mean()), float(b.xy[:, 0].mean())))
+    boards = largest_first(boards)
     for b in boards:
         for a in (b.corner_index, b.grid, b.xy):
             a.setflags(write=False)

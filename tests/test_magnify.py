@@ -1,0 +1,63 @@
+"""The magnified look at thin boards (ccdn.magnify): which region, the pixel mapping, the merge."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from conftest import stress_scene
+
+from ccdn import magnify
+
+
+def test_only_a_board_with_sliver_squares_gets_a_region(detector, examples):
+    """A frontal board (squares ~40 px) is not magnified; the stress set's extreme-pose render
+    7100011, tilted ~70 degrees with squares thinning to 2-5 px, is, around its board, inside the
+    frame and within MAX_SHARE of it."""
+    frontal = detector.detect(examples["board"]["path"])
+    assert frontal.boards and magnify.thin_region(frontal.boards, frontal.image_size[::-1]) is None
+    scene = stress_scene("extreme-pose", 7_100_011)
+    steep = detector.detect(scene.image)
+    h, w = scene.image.shape
+    x0, y0, x1, y1 = magnify.thin_region(steep.boards, (h, w))
+    assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h
+    assert (x1 - x0) * (y1 - y0) <= magnify.MAX_SHARE * h * w
+    inside = (steep.xy >= [x0, y0]).all(1) & (steep.xy < [x1, y1]).all(1)
+    assert inside.all()
+
+
+def test_magnified_pixel_centres_map_onto_the_frames():
+    """Pixel centres of the region, magnified, land on the frame's pixel centres: the magnified
+    pixels 2k and 2k + 1 meet at the centre of frame pixel k (x0 + k)."""
+    region = (10, 20, 30, 40)
+    gray = np.arange(60 * 50, dtype=np.uint16).reshape(60, 50).astype(np.uint8)
+    assert magnify.magnified(gray, region).shape == (40, 40)
+    frame = magnify.to_frame(np.array([[0.5, 0.5], [4.5, 8.5]]), region)
+    np.testing.assert_allclose(frame, [[10, 20], [12, 24]])
+
+
+def test_a_bigger_magnified_board_takes_the_place_of_the_ones_it_covers(detector, examples):
+    """merge: a magnified board with more corners than the boards it shares corners with replaces
+    them; one with fewer stays out; one sharing no corner is added. xy and values of both passes
+    are kept, one after the other, and the boards kept index them."""
+    (board,) = detector.detect(examples["board"]["path"]).boards
+    xy, values = board.xy, np.ones(len(board), np.float32)
+    part = dataclasses.replace(board, corner_index=np.arange(len(board) - 5), grid=board.grid[5:], xy=board.xy[5:])
+    whole = dataclasses.replace(board, corner_index=np.arange(len(board)), xy=board.xy + 0.25)
+    elsewhere = dataclasses.replace(whole, corner_index=np.arange(len(board)) + len(board), xy=board.xy + 1000)
+    more_xy = np.concatenate([whole.xy, elsewhere.xy])
+    more_values = np.ones(len(more_xy), np.float32)
+
+    merged_xy, merged_values, kept = magnify.merge(xy[5:], values[5:], (part,), more_xy, more_values, (whole,))
+    assert len(merged_xy) == len(merged_values) == len(board) - 5 + len(more_xy)
+    assert len(kept) == 1 and len(kept[0]) == len(board)  # the whole board in place of its part
+    np.testing.assert_array_equal(merged_xy[kept[0].corner_index], whole.xy)
+
+    whole_first = dataclasses.replace(board, corner_index=np.arange(len(board)))
+    part_magnified = dataclasses.replace(part, xy=part.xy + 0.25)
+    _, _, kept = magnify.merge(xy, values, (whole_first,), more_xy, more_values, (part_magnified, elsewhere))
+    assert [len(b) for b in kept] == [len(board)] * 2
+    assert kept[0].corner_index.max() < len(board)  # the first pass's board, left as it was (top first)
+    merged_xy = np.concatenate([xy, more_xy])
+    for b in kept:
+        np.testing.assert_array_equal(merged_xy[b.corner_index], b.xy)
