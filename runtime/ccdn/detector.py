@@ -13,7 +13,9 @@ and the finer passes are skipped; otherwise the next finer pass runs, down to th
 is scored only inside boxes around what the finest shrunk pass responded to (ccdn.regions: a frame
 with nothing there costs no full-resolution network). Small squares and frames without a board
 therefore pay for the shrunk passes, and a board too small to be seen shrunk is lost when another
-board in the same frame has squares big enough (measured in benchmarks/; README).
+board in the same frame has squares big enough (measured in benchmarks/; README). A board the
+full-frame pass finds with sliver squares (a steep view's far end) gets one more look, its
+surroundings magnified (ccdn.magnify).
 
 The default detector is a cascade: the shrunk passes run the cheap `fast` model (`fast-int8` on
 CPUs with VNNI: ccdn.models.default_coarse_model), whose one weakness, corners closer than ~5 px (its
