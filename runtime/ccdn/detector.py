@@ -278,6 +278,7 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
+    """a, made read-only in place, as ccdn.grid leaves a Board's arrays."""
     a.setflags(write=False)
     return a
 
