@@ -67,9 +67,9 @@ def merge(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...], more_xy
     top, then left), their corner_index into that xy."""
     kept = list(boards)
     for board in more_boards:
-        shared = [old for old in kept if _shares_corners(board.xy, old.xy)]
-        if len(board) > sum(len(old) for old in shared):
-            kept = [old for old in kept if not any(old is s for s in shared)]
+        shares = [_shares_corners(board.xy, old.xy) for old in kept]
+        if len(board) > sum(len(old) for old, shared in zip(kept, shares) if shared):
+            kept = [old for old, shared in zip(kept, shares) if not shared]
             kept.append(dataclasses.replace(board, corner_index=board.corner_index + len(xy)))
     return np.concatenate([xy, more_xy]), np.concatenate([values, more_values]), tuple(largest_first(kept))
 
