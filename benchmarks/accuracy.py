@@ -190,6 +190,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--filter", default="grid", help="false-corner filter: grid (default), kmeans (paper), none")
     parser.add_argument("--no-coarse", action="store_true", help="always run the network at full resolution")
     parser.add_argument("--fast-check", action="store_true", help="Detector(fast_check=True): never at full resolution")
+    parser.add_argument("--exhaustive", action="store_true", help="Detector(exhaustive=True): also the full frame, and more")
     parser.add_argument("--synthetic", type=int, default=60, help="number of renders (plus a third as many boardless)")
     parser.add_argument("--seed", type=int, default=5_000_000)
     parser.add_argument("--no-real-dev", action="store_true", help="renders only (e.g. to choose between checkpoints)")
@@ -197,11 +198,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "accuracy.json")
     args = parser.parse_args(argv)
     detector = ccdn.Detector(args.model, args.threads, refinement=args.refinement, filter=args.filter,
-                             coarse_to_fine=not args.no_coarse, fast_check=args.fast_check)
+                             coarse_to_fine=not args.no_coarse, fast_check=args.fast_check,
+                             exhaustive=args.exhaustive)
     t0 = time.time()
     result = evaluate(detector, args.synthetic, args.seed, real_dev=not args.no_real_dev)
     result["config"] = {"model": detector.models, "version": detector.model.version, "refinement": args.refinement,
                         "filter": args.filter, "coarse_to_fine": not args.no_coarse, "fast_check": args.fast_check,
+                        "exhaustive": args.exhaustive,
                         "match_radius_px": MATCH_RADIUS, "seed": args.seed,
                         "machine": cpu_name(), "seconds": round(time.time() - t0, 1)}
     write_report(result, args.json)

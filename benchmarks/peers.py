@@ -32,18 +32,19 @@ class Adapter:
     boards: Callable[[], list[tuple[np.ndarray, np.ndarray]]] | None = None
 
 
-def ccdn_adapter(model: str | os.PathLike | None, threads: int | None, fast_check: bool = False) -> Adapter:
-    """ccdn.Detector with its default settings (and its fast check when asked)."""
+def ccdn_adapter(model: str | os.PathLike | None, threads: int | None, fast_check: bool = False,
+                 exhaustive: bool = False) -> Adapter:
+    """ccdn.Detector with its default settings (and its fast check or exhaustive search when asked)."""
     import ccdn
 
-    detector = ccdn.Detector(model, threads, fast_check=fast_check)
+    detector = ccdn.Detector(model, threads, fast_check=fast_check, exhaustive=exhaustive)
     last: list = [None]
 
     def detect(gray: np.ndarray, size: BoardSize) -> np.ndarray:
         last[0] = detector.detect(gray)
         return last[0].xy.astype(np.float64)
 
-    check = ", fast check" if fast_check else ""
+    check = ", fast check" if fast_check else ", exhaustive" if exhaustive else ""
     return Adapter("ccdn", detect, f"model {detector.models} {detector.model.version}, {detector.threads} threads{check}",
                    lambda: [(b.grid, b.xy.astype(np.float64)) for b in last[0].boards])
 
@@ -106,10 +107,10 @@ DETECTORS = ["ccdn", "opencv", "chess-corners", "libcbdetect"]
 
 
 def load_adapters(names: list[str], model: str | None, threads: int | None,
-                  fast_check: bool = False) -> tuple[list[Adapter], dict[str, str]]:
+                  fast_check: bool = False, exhaustive: bool = False) -> tuple[list[Adapter], dict[str, str]]:
     """The adapters named, in order, and a note for each one skipped because its library is missing."""
     factories: dict[str, Callable[[], Adapter]] = {
-        "ccdn": lambda: ccdn_adapter(model, threads, fast_check),
+        "ccdn": lambda: ccdn_adapter(model, threads, fast_check, exhaustive),
         "opencv": lambda: opencv_adapter(threads),
         "chess-corners": chess_corners_adapter,
         "libcbdetect": libcbdetect_adapter,

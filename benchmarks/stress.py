@@ -295,6 +295,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=None, help="ccdn and OpenCV threads (default: each library's)")
     parser.add_argument("--fast-check", action="store_true",
                         help="ccdn: Detector(fast_check=True), no full-resolution pass after shrunk passes without a board")
+    parser.add_argument("--exhaustive", action="store_true",
+                        help="ccdn: Detector(exhaustive=True), also the full frame and stretched looks at loose peaks")
     parser.add_argument("--per-subset", type=int, default=20, help="images per subset")
     parser.add_argument("--skip", type=int, default=0,
                         help="leave out each subset's first SKIP images (--skip 20: a held-out sample)")
@@ -309,7 +311,7 @@ def main(argv: list[str] | None = None) -> None:
     show_bar = sys.stderr.isatty()
     rendered = {name: render_subset(name, args.per_subset, args.skip)
                 for name in tqdm(args.subsets, unit="subset", desc="render", disable=not show_bar, file=sys.stderr)}
-    adapters, skipped = load_adapters(args.detectors, args.model, args.threads, args.fast_check)
+    adapters, skipped = load_adapters(args.detectors, args.model, args.threads, args.fast_check, args.exhaustive)
     result = evaluate({name: scenes for name, (scenes, _) in rendered.items()}, adapters, show_bar)
     for name, (_, tried) in rendered.items():
         result["subsets"][name]["seeds_tried"] = tried

@@ -289,6 +289,11 @@ def test_scores_in_boxes_equal_the_whole_frame_scores_there_and_zero_elsewhere(e
     assert not session.scores_in(gray, []).any()  # nothing to look at: no network run, an empty map
 
 
+def test_fast_check_and_exhaustive_are_refused_together():
+    with pytest.raises(ValueError, match="exclude each other"):
+        ccdn.Detector(fast_check=True, exhaustive=True)
+
+
 def test_unknown_filter_is_refused():
     with pytest.raises(ValueError, match="unknown filter"):
         ccdn.Detector(filter="magic")
@@ -409,3 +414,20 @@ def test_a_steep_boards_far_slivers_are_found_magnified(monkeypatch):
     assert index_map(board, scene.grid[distance.argmin(1)]) is not None
     monkeypatch.setattr(magnify, "THIN_ALTITUDE", 0.0)
     assert len(detector.detect(scene.image).xy) <= 120
+
+
+def test_exhaustive_detection_finds_a_sliver_board_no_pass_links():
+    """The stress set's extreme-pose render 7100061: a board seen so steeply that its cells are sheared
+    past what a lattice is grown over (sines 0.23-0.29 < ccdn.grid.MIN_SINE) and its squares are 2-3 px
+    across: the default finds none of its 42 corners. Exhaustive detection looks at the cluster of
+    score peaks there stretched 3x across its long axis (ccdn.magnify.stretched): the whole board,
+    every corner within 1 px of the truth (measured: mean 0.14, max 0.51 px), indexed right."""
+    scene = stress_scene("extreme-pose", 7_100_061)
+    assert len(scene.corners) == 42
+    assert len(ccdn.Detector(threads=2).detect(scene.image).xy) == 0
+    found = ccdn.Detector(threads=2, exhaustive=True).detect(scene.image)
+    assert len(found.boards) == 1 and len(found.boards[0]) == 42
+    board = found.boards[0]
+    distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+    assert distance.min(1).max() < 1.0 and distance.min(1).mean() < 0.25
+    assert index_map(board, scene.grid[distance.argmin(1)]) is not None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 from conftest import stress_scene
 
@@ -32,7 +33,7 @@ def test_magnified_pixel_centres_map_onto_the_frames():
     region = (10, 20, 30, 40)
     gray = np.arange(60 * 50, dtype=np.uint16).reshape(60, 50).astype(np.uint8)
     assert magnify.magnified(gray, region).shape == (40, 40)
-    frame = magnify.to_frame(np.array([[0.5, 0.5], [4.5, 8.5]]), region)
+    frame = magnify.from_view(np.array([[0.5, 0.5], [4.5, 8.5]]), magnify.magnified_to_frame(region))
     np.testing.assert_allclose(frame, [[10, 20], [12, 24]])
 
 
@@ -61,3 +62,25 @@ def test_a_bigger_magnified_board_takes_the_place_of_the_ones_it_covers(detector
     merged_xy = np.concatenate([xy, more_xy])
     for b in kept:
         np.testing.assert_array_equal(merged_xy[b.corner_index], b.xy)
+
+
+def test_a_stretched_view_maps_back_onto_the_frame():
+    """stretched: the view's x runs along the cluster's long axis, its y across it STRETCH times
+    longer, and the affine it returns maps the view's pixels back onto the frame's: a point of the
+    frame, sent forward by the inverse and back by from_view, lands where it was."""
+    t = np.linspace(0, 100, 21)
+    cluster = np.stack([50 + t, 80 + 0.5 * t + np.tile([0.0, 3.0], 11)[:21]], 1)  # a thin band along (2, 1)
+    yy, xx = np.mgrid[:240, :320]
+    gray = (0.5 * xx + 0.3 * yy).astype(np.uint8)  # a ramp: bicubic resampling keeps it
+    view, back = magnify.stretched(gray, cluster)
+    forward = cv2.invertAffineTransform(back)
+    along, across = forward[0, :2], forward[1, :2]
+    np.testing.assert_allclose(np.linalg.norm(along), 1.0)
+    np.testing.assert_allclose(np.linalg.norm(across), magnify.STRETCH)
+    assert abs(along @ np.array([2.0, 1.0]) / np.sqrt(5)) > 0.99  # x along the band
+    mapped = cluster @ forward[:, :2].T + forward[:, 2]
+    assert ((mapped >= 0) & (mapped < view.shape[::-1])).all()
+    np.testing.assert_allclose(magnify.from_view(mapped, back), cluster, atol=1e-3)
+    x, y = np.rint(mapped[10]).astype(int)  # and the view's pixel there shows the frame's grey there
+    source_x, source_y = magnify.from_view(np.array([[x, y]], np.float64), back)[0]
+    assert abs(float(view[y, x]) - (0.5 * source_x + 0.3 * source_y)) <= 1.5

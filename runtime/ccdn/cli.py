@@ -40,7 +40,7 @@ def run_detect(args: argparse.Namespace) -> int:
     overlay = args.format == "json" if args.overlay is None else args.overlay
     workers = args.workers or default_workers()
     options = BatchOptions(args.out, args.format, overlay, args.force, workers, args.threads, args.model,
-                           args.max_pixels or DEFAULT_MAX_PIXELS)
+                           args.max_pixels or DEFAULT_MAX_PIXELS, args.exhaustive)
     try:
         batch = Batch(options)
         items, failures = collect_inputs(args.paths, args.include, args.exclude, skip=args.out)
@@ -109,6 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-pixels", type=positive_int, default=None, metavar="N",
                    help=f"refuse larger images, checked from the file header before decoding (default {MAX_PIXELS_HELP})")
     p.add_argument("--force", action="store_true", help="redo images that already have a result")
+    p.add_argument("--exhaustive", action="store_true",
+                   help="search harder (the full frame always, stretched looks at loose responses): finds boards seen "
+                        "very steeply, at several times the time per frame")
     p.add_argument("--model", default=None,
                    help=f"bundled model name or .onnx path ({DEFAULT_HELP})")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary line; failures are still listed")
@@ -126,6 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--model", default=None,
                    help=f"bundled detector model name or .onnx path ({DEFAULT_HELP})")
     c.add_argument("--threads", type=positive_int, default=None, metavar="N", help="inference threads")
+    c.add_argument("--exhaustive", action="store_true", help="search harder for boards (see ccdn detect --help)")
     c.add_argument("--out", type=Path, required=True, help="output folder")
     c.add_argument("--partial", action="store_true",
                    help="also use boards with whole rows or columns undetected (their offset on the board is "
@@ -153,7 +157,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from .grid import find_boards
 
     try:
-        detector = Detector(args.model, args.threads)
+        detector = Detector(args.model, args.threads, exhaustive=args.exhaustive)
         items, failures = collect_inputs([args.dir], skip=args.out)
     except (OSError, ValueError) as exc:  # ModelError is a ValueError
         print(f"ccdn: {exc}", file=sys.stderr)

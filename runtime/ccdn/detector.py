@@ -15,7 +15,9 @@ with nothing there costs no full-resolution network). Small squares and frames w
 therefore pay for the shrunk passes, and a board too small to be seen shrunk is lost when another
 board in the same frame has squares big enough (measured in benchmarks/; README). A board the
 full-frame pass finds with sliver squares (a steep view's far end) gets one more look, its
-surroundings magnified (ccdn.magnify).
+surroundings magnified (ccdn.magnify). Exhaustive detection (for offline calibration) also looks
+at the clusters of the full-frame pass's score peaks that no board covers, stretched across their
+long axis (ccdn.magnify).
 
 The default detector is a cascade: the shrunk passes run the cheap `fast` model (`fast-int8` on
 CPUs with VNNI: ccdn.models.default_coarse_model), whose one weakness, corners closer than ~5 px (its
@@ -36,7 +38,7 @@ import numpy as np
 from .edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
 from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
-from .magnify import magnified, merge, thin_region, to_frame
+from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region
 from .models import default_coarse_model
 from .peaks import find_peaks, kmeans_outliers, suppress
 from .regions import look_boxes
@@ -89,16 +91,23 @@ class Detector:
     pass cannot see: squares too small for the shrunk frame, steep, glaring or strongly distorted
     views (README; benchmarks/stress.py --fast-check). Frames too small to shrink (shorter side
     under 2 x COARSE_MIN_SIDE) and detectors without coarse-to-fine run the full frame as usual.
+    exhaustive: for offline calibration, where a view is worth more than its time, like OpenCV's
+    CALIB_CB_EXHAUSTIVE: where the full-frame pass runs, the clusters of its score peaks that no
+    board covers get a look stretched across their long axis (ccdn.magnify.loose_clusters,
+    stretched: a board seen so steeply that no pass finds it). Costs: README. Not with fast_check,
+    its opposite.
     detect() is thread-safe: one Detector may serve several threads.
     """
 
     def __init__(self, model: str | os.PathLike | None = None, threads: int | None = None, *,
                  coarse_model: str | os.PathLike | None = None, spinning: bool = True, relative: float | None = None,
                  floor: float | None = None, filter: str = "grid", refinement: str = "saddle",
-                 coarse_to_fine: bool = True, fast_check: bool = False,
+                 coarse_to_fine: bool = True, fast_check: bool = False, exhaustive: bool = False,
                  max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
         if filter not in FILTERS:
             raise ValueError(f"unknown filter {filter!r}; choose from {FILTERS}")
+        if fast_check and exhaustive:
+            raise ValueError("fast_check and exhaustive exclude each other")
         self._session = ScoreSession(model, threads, spinning)
         self.model = self._session.info
         self.threads = self._session.threads
@@ -114,6 +123,7 @@ class Detector:
                                 is not None else self._session)
         self.coarse_model = self._coarse_session.info
         self.fast_check = fast_check
+        self.exhaustive = exhaustive and filter == "grid" and refinement == "saddle"
         self.max_pixels = max_pixels
 
     @property
@@ -153,9 +163,9 @@ class Detector:
         elif xy is None:
             model = self.model
             boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape)
-            xy, values, found = self._corners(gray, gray, 1, *self._peaks(self._session, gray, clock, boxes), boards,
-                                              board_size, clock)
-            xy, values, found = self._magnified(gray, xy, values, found, boards, board_size, clock)
+            xy, values, found, peaks = self._full_frame(gray, boxes, boards, board_size, clock)
+            if self.exhaustive:
+                xy, values, found = self._loose_looks(gray, xy, values, found, peaks, boards, board_size, clock)
         xy, found = self._on_edges(gray, xy, found, clock)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
                          found, clock.laps)
@@ -221,19 +231,45 @@ class Detector:
             clock.lap("boards")
         return refined, values, found
 
-    def _magnified(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
-                   boards: bool, board_size, clock: _Clock):
-        """The full-frame pass's corners and boards, with boards found on the thin boards' surroundings
-        magnified in place of those they cover where they have more corners (ccdn.magnify). The
-        magnified pass runs the shrunk passes' model: corners lie MAGNIFICATION times farther apart there."""
-        region = thin_region(found, gray.shape) if self.filter == "grid" and self.refinement == "saddle" else None
+    def _full_frame(self, gray: np.ndarray, boxes: list[tuple[int, int, int, int]] | None, boards: bool,
+                    board_size, clock: _Clock):
+        """The full-frame pass (the network only inside `boxes` when given: ccdn.regions), with the
+        magnified look at its thin boards: (xy, values, boards, its score peaks)."""
+        score, peaks, values, gaps = self._peaks(self._session, gray, clock, boxes)
+        xy, values, found = self._corners(gray, gray, 1, score, peaks, values, gaps, boards, board_size, clock)
+        if self.filter == "grid" and self.refinement == "saddle":
+            xy, values, found = self._magnified(gray, thin_region(found, gray.shape), xy, values, found, boards,
+                                                board_size, clock)
+        return xy, values, found, peaks
+
+    def _loose_looks(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
+                     peaks: np.ndarray, boards: bool, board_size, clock: _Clock):
+        """xy, values and boards with exhaustive detection's looks at the clusters of score peaks that
+        no board covers, each stretched across its long axis (ccdn.magnify.stretched), one after the other."""
+        for cluster in loose_clusters(peaks, found, gray.shape):
+            view = stretched(gray, cluster)
+            if view is not None:
+                xy, values, found = self._look(*view, xy, values, found, boards, board_size, clock)
+        return xy, values, found
+
+    def _magnified(self, gray: np.ndarray, region: tuple[int, int, int, int] | None, xy: np.ndarray,
+                   values: np.ndarray, found: tuple[Board, ...], boards: bool, board_size, clock: _Clock):
+        """The corners and boards with the look at `region` magnified (ccdn.magnify; None: as they are)."""
         if region is None:
             return xy, values, found
-        big = magnified(gray, region)
-        more_xy, more_values, more_found = self._corners(big, big, 1, *self._peaks(self._coarse_session, big, clock),
+        return self._look(magnified(gray, region), magnified_to_frame(region), xy, values, found, boards, board_size,
+                          clock)
+
+    def _look(self, view: np.ndarray, to_frame: np.ndarray, xy: np.ndarray, values: np.ndarray,
+              found: tuple[Board, ...], boards: bool, board_size, clock: _Clock):
+        """The corners and boards, with the boards found on `view`, a resampled part of the frame (its
+        affine (2, 3) `to_frame` maps it back), in place of those they cover where they have more
+        corners (ccdn.magnify.merge). The look runs the shrunk passes' model: corners lie farther
+        apart there."""
+        more_xy, more_values, more_found = self._corners(view, view, 1, *self._peaks(self._coarse_session, view, clock),
                                                          boards, board_size, clock)
-        more_found = tuple(dataclasses.replace(b, xy=_read_only(to_frame(b.xy, region))) for b in more_found)
-        return _keep_board_corners(*merge(xy, values, found, to_frame(more_xy, region), more_values, more_found))
+        more_found = tuple(dataclasses.replace(b, xy=_read_only(from_view(b.xy, to_frame))) for b in more_found)
+        return _keep_board_corners(*merge(xy, values, found, from_view(more_xy, to_frame), more_values, more_found))
 
     def _on_edges(self, gray: np.ndarray, xy: np.ndarray, found: tuple[Board, ...], clock: _Clock):
         """xy and boards, the boards' corners refined on their edge lines where the grid filter completed

@@ -5,9 +5,14 @@ trained at 1:1, barely scores and the saddle fit cannot resolve (stress renders:
 with squares under 4 px across missed, 19 % at 4-6 px, 0.4 % above). When the full-frame pass finds
 a board whose thinnest squares are under THIN_ALTITUDE px across, the detector runs once more on the
 board's surroundings scaled up MAGNIFICATION times (bicubic) and keeps a board found there in place
-of the ones it covers when it has more corners. Frames with no board found pay nothing: a
-magnified look at every boardless frame's dense responses, which would also find wholly missed
-slivers, measured 150-250 ms more per cluttered frame (CHANGES.md).
+of the ones it covers when it has more corners. Frames with no board found pay nothing by default.
+
+Exhaustive detection (Detector(exhaustive=True)) also looks at the clusters of score peaks that no
+board covers, each resampled along its long axis and stretched STRETCH times across it: a board
+seen so steeply that no pass finds it is a sliver whose cells are sheared flatter than a lattice is
+grown over (ccdn.grid.MIN_SINE), which magnifying keeps (angles do not change), and stretching
+across opens up. On a cluttered frame such looks cost ~30 ms at 640x480 and ~200 ms at 2000x1500,
+hence not by default (README).
 """
 
 from __future__ import annotations
@@ -28,6 +33,13 @@ PAD = (0.25, 8.0)  # the region magnified: the thin boards' corners' bounding bo
 # size and these px each way, where the steep end the pass lost continues
 MAX_SHARE = 0.5  # of the frame's area at most (the magnified pass costs MAGNIFICATION^2 times its pixels)
 SAME_CORNER = 2.0  # px: a magnified board's corner this close to one of a board found before: the same board
+LOOSE_PEAKS = 9  # exhaustive detection: a cluster of at least this many score peaks that no board covers ...
+LOOSE_LINK = 12.0  # ... each within this many px of another, is looked at stretched (loose_clusters, stretched) ...
+MAX_LOOKS = 8  # ... the largest this many clusters of a frame
+STRETCH = 3.0  # x across a cluster's long axis (measured on 90 extreme-pose renders: 2x magnified
+# isotropically found 8 of the 127 corners of four missed slivers, 3x across alone 109)
+MAX_STRETCHED = 2.0  # x the frame's pixels at most per stretched view
+COVERED = 3.0  # px: a peak this close to a board's corner, or inside its outline, is that board's
 
 
 def thin_region(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
@@ -36,7 +48,12 @@ def thin_region(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[int,
     thin = [board.xy for board in boards if _thinnest(board) < THIN_ALTITUDE]
     if not thin:
         return None
-    xy = np.concatenate(thin).astype(np.float64)
+    return _grown_box(np.concatenate(thin).astype(np.float64), shape)
+
+
+def _grown_box(xy: np.ndarray, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1): the bounding box of points xy (N, 2) grown by PAD, within a frame of `shape`;
+    None when it covers more than MAX_SHARE of the frame."""
     low, high = xy.min(0), xy.max(0)
     pad = PAD[0] * (high - low) + PAD[1]
     h, w = shape
@@ -47,15 +64,72 @@ def thin_region(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[int,
     return x0, y0, x1, y1
 
 
+def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[int, int]) -> list[np.ndarray]:
+    """The clusters (each (K, 2)) of score peaks (N, 2) on a frame of `shape` (h, w) that no board
+    covers (COVERED), largest first, at most MAX_LOOKS: a cluster links peaks within LOOSE_LINK px
+    of each other and needs LOOSE_PEAKS of them. On a board seen so steeply that its squares are
+    slivers the network still scores many corners that no pass links (exhaustive detection)."""
+    h, w = shape
+    loose = np.asarray(peaks, np.float64).reshape(-1, 2)
+    if boards and len(loose):
+        outline = np.zeros(shape, np.uint8)
+        for board in boards:
+            cv2.fillConvexPoly(outline, cv2.convexHull(np.rint(board.xy).astype(np.int32)), 1)
+        corners = np.concatenate([board.xy for board in boards]).astype(np.float64)
+        near = ((loose[:, None] - corners[None]) ** 2).sum(-1).min(1) <= COVERED**2
+        col, row = np.rint(loose).astype(np.int64).T
+        loose = loose[~near & (outline[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)] == 0)]
+    if len(loose) < LOOSE_PEAKS:
+        return []
+    links = np.zeros(shape, np.uint8)  # each peak's disk of half LOOSE_LINK: overlapping disks link
+    for x, y in np.rint(loose).astype(np.int64).tolist():
+        cv2.circle(links, (x, y), int(LOOSE_LINK / 2), 1, -1)
+    _, labels = cv2.connectedComponents(links, connectivity=8)
+    col, row = np.rint(loose).astype(np.int64).T
+    label = labels[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)]
+    counts = np.bincount(label)
+    return [loose[label == k] for k in np.argsort(-counts, kind="stable")[:MAX_LOOKS] if k and counts[k] >= LOOSE_PEAKS]
+
+
+def stretched(gray: np.ndarray, cluster: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """gray around a cluster of peaks (K, 2) (loose_clusters), resampled (bicubic) with the cluster's
+    long axis along x and stretched STRETCH times across it, and the affine (2, 3) that maps its
+    pixels back onto the frame's; None when that image would exceed MAX_STRETCHED x the frame's
+    pixels. A board seen very steeply is a sliver along its long axis whose cells are sheared
+    flatter than a lattice is grown over (ccdn.grid.MIN_SINE: stress renders' missed slivers, sines
+    0.18-0.31): stretched across, its cells open up (sine 0.25 -> ~0.6 at 3x) and its squares widen."""
+    centre = cluster.mean(0)
+    _, axes = np.linalg.eigh(np.cov((cluster - centre).T))
+    along = axes[:, 1]
+    to_image = np.stack([along, STRETCH * np.array([-along[1], along[0]])])  # (2, 2): frame offsets -> image
+    projected = (cluster - centre) @ to_image.T
+    low, high = projected.min(0), projected.max(0)
+    pad = PAD[0] * (high - low) + PAD[1] * np.array([1.0, STRETCH])
+    low, high = low - pad, high + pad
+    width, height = (np.ceil(high - low).astype(np.int64) + 1).tolist()
+    if width * height > MAX_STRETCHED * gray.size:
+        return None
+    forward = np.concatenate([to_image, (-to_image @ centre - low)[:, None]], 1)
+    image = cv2.warpAffine(gray, forward, (width, height), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    return image, cv2.invertAffineTransform(forward)
+
+
+def from_view(xy: np.ndarray, affine: np.ndarray) -> np.ndarray:
+    """Positions (N, 2) on a resampled view -> frame pixels, by the view's affine (2, 3) back."""
+    return (xy.astype(np.float64) @ affine[:, :2].T + affine[:, 2]).astype(np.float32)
+
+
 def magnified(gray: np.ndarray, region: tuple[int, int, int, int]) -> np.ndarray:
     """The region (x0, y0, x1, y1) of gray scaled up MAGNIFICATION times (bicubic, uint8)."""
     x0, y0, x1, y1 = region
     return cv2.resize(gray[y0:y1, x0:x1], None, fx=MAGNIFICATION, fy=MAGNIFICATION, interpolation=cv2.INTER_CUBIC)
 
 
-def to_frame(xy: np.ndarray, region: tuple[int, int, int, int]) -> np.ndarray:
-    """Positions (N, 2) on the magnified region -> frame pixels (pixel centres map onto pixel centres)."""
-    return ((xy + 0.5) / MAGNIFICATION - 0.5 + np.array(region[:2])).astype(np.float32)
+def magnified_to_frame(region: tuple[int, int, int, int]) -> np.ndarray:
+    """The affine (2, 3) from the magnified region's pixels back to the frame's (for from_view):
+    pixel centres map onto pixel centres."""
+    shift = 0.5 / MAGNIFICATION - 0.5
+    return np.array([[1 / MAGNIFICATION, 0, region[0] + shift], [0, 1 / MAGNIFICATION, region[1] + shift]])
 
 
 def merge(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...], more_xy: np.ndarray,
