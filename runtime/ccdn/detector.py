@@ -123,7 +123,10 @@ class Detector:
                                 is not None else self._session)
         self.coarse_model = self._coarse_session.info
         self.fast_check = fast_check
-        self.exhaustive = exhaustive and filter == "grid" and refinement == "saddle"
+        # boards the grid filter completed, corners the saddle fit refined: what the looks again
+        # (magnified, stretched) and the edge lines build on
+        self._saddle_boards = filter == "grid" and refinement == "saddle"
+        self.exhaustive = exhaustive and self._saddle_boards
         self.max_pixels = max_pixels
 
     @property
@@ -237,7 +240,7 @@ class Detector:
         magnified look at its thin boards: (xy, values, boards, its score peaks)."""
         score, peaks, values, gaps = self._peaks(self._session, gray, clock, boxes)
         xy, values, found = self._corners(gray, gray, 1, score, peaks, values, gaps, boards, board_size, clock)
-        if self.filter == "grid" and self.refinement == "saddle":
+        if self._saddle_boards:
             xy, values, found = self._magnified(gray, thin_region(found, gray.shape), xy, values, found, boards,
                                                 board_size, clock)
         return xy, values, found, peaks
@@ -274,7 +277,7 @@ class Detector:
     def _on_edges(self, gray: np.ndarray, xy: np.ndarray, found: tuple[Board, ...], clock: _Clock):
         """xy and boards, the boards' corners refined on their edge lines where the grid filter completed
         them and the saddle fit refined them (_refined_on_edges)."""
-        if self.filter == "grid" and found and self.refinement == "saddle":
+        if self._saddle_boards and found:
             xy, found = _refined_on_edges(gray, xy, found, image_noise(gray) >= NOISY_SIGMA)
             clock.lap("edges")
         return xy, found

@@ -42,6 +42,10 @@ MAX_STRETCHED = 2.0  # x the frame's pixels at most per stretched view
 COVERED = 3.0  # px: a peak this close to a board's corner, or inside its outline, is that board's
 
 
+_LINK_DISK = cv2.circle(np.zeros((2 * int(LOOSE_LINK / 2) + 1,) * 2, np.uint8), (int(LOOSE_LINK / 2),) * 2,
+                        int(LOOSE_LINK / 2), 1, -1)  # the disk loose_clusters grows each peak by
+
+
 def thin_region(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
     """(x0, y0, x1, y1): the part of a frame of `shape` (h, w) around the boards whose squares thin
     below THIN_ALTITUDE, to be magnified; None when no board is thin or the region is too large."""
@@ -71,22 +75,21 @@ def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[in
     slivers the network still scores many corners that no pass links (exhaustive detection)."""
     h, w = shape
     loose = np.asarray(peaks, np.float64).reshape(-1, 2)
+    col, row = np.clip(np.rint(loose), 0, (w - 1, h - 1)).astype(np.int64).T  # each peak's pixel
     if boards and len(loose):
         outline = np.zeros(shape, np.uint8)
         for board in boards:
             cv2.fillConvexPoly(outline, cv2.convexHull(np.rint(board.xy).astype(np.int32)), 1)
         corners = np.concatenate([board.xy for board in boards]).astype(np.float64)
         near = ((loose[:, None] - corners[None]) ** 2).sum(-1).min(1) <= COVERED**2
-        col, row = np.rint(loose).astype(np.int64).T
-        loose = loose[~near & (outline[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)] == 0)]
+        keep = ~near & (outline[row, col] == 0)
+        loose, col, row = loose[keep], col[keep], row[keep]
     if len(loose) < LOOSE_PEAKS:
         return []
     links = np.zeros(shape, np.uint8)  # each peak's disk of half LOOSE_LINK: overlapping disks link
-    for x, y in np.rint(loose).astype(np.int64).tolist():
-        cv2.circle(links, (x, y), int(LOOSE_LINK / 2), 1, -1)
-    _, labels = cv2.connectedComponents(links, connectivity=8)
-    col, row = np.rint(loose).astype(np.int64).T
-    label = labels[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)]
+    links[row, col] = 1
+    _, labels = cv2.connectedComponents(cv2.dilate(links, _LINK_DISK), connectivity=8)
+    label = labels[row, col]
     counts = np.bincount(label)
     return [loose[label == k] for k in np.argsort(-counts, kind="stable")[:MAX_LOOKS] if k and counts[k] >= LOOSE_PEAKS]
 
@@ -134,9 +137,10 @@ def magnified_to_frame(region: tuple[int, int, int, int]) -> np.ndarray:
 
 def merge(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...], more_xy: np.ndarray,
           more_values: np.ndarray, more_boards: tuple[Board, ...]):
-    """The corners (xy, values) and boards of the full-frame pass and of the magnified one (already
-    in frame pixels), with each magnified board that has more corners than the boards it shares
-    corners with (SAME_CORNER) in their place, and a magnified board that shares none added. Returns
+    """The corners (xy, values) and boards of the full-frame pass and of a look at a resampled part of
+    it (magnified or stretched; already in frame pixels), with each board of the look that has more
+    corners than the boards it shares corners with (SAME_CORNER) in their place, and one that shares
+    none added. Returns
     xy and values of both passes, one after the other, and the boards kept (largest first, ties:
     top, then left), their corner_index into that xy."""
     kept = list(boards)
