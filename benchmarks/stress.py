@@ -296,7 +296,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--fast-check", action="store_true",
                         help="ccdn: Detector(fast_check=True), no full-resolution pass after shrunk passes without a board")
     parser.add_argument("--exhaustive", action="store_true",
-                        help="ccdn: Detector(exhaustive=True), also the full frame and stretched looks at loose peaks")
+                        help="ccdn: Detector(exhaustive=True), a stretched look at every loose cluster of peaks")
     parser.add_argument("--per-subset", type=int, default=20, help="images per subset")
     parser.add_argument("--skip", type=int, default=0,
                         help="leave out each subset's first SKIP images (--skip 20: a held-out sample)")

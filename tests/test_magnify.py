@@ -1,4 +1,5 @@
-"""The magnified look at thin boards (ccdn.magnify): which region, the pixel mapping, the merge."""
+"""The second looks (ccdn.magnify): which region is magnified, which clusters are stretched, the pixel
+mappings, the merge."""
 
 from __future__ import annotations
 
@@ -84,3 +85,24 @@ def test_a_stretched_view_maps_back_onto_the_frame():
     x, y = np.rint(mapped[10]).astype(int)  # and the view's pixel there shows the frame's grey there
     source_x, source_y = magnify.from_view(np.array([[x, y]], np.float64), back)[0]
     assert abs(float(view[y, x]) - (0.5 * source_x + 0.3 * source_y)) <= 1.5
+
+
+def test_only_sliver_shaped_clusters_are_looked_at_unless_any_shape():
+    """loose_clusters: of four clusters of peaks, only the sliver (a sheared lattice of 3 rows of 15,
+    long and thin) is looked at by default; a round one (a 6 x 6 lattice), a line (an edge's peaks)
+    and a sliver too small (3 rows of 6) too with any_shape; the largest first either way."""
+    col, row = np.meshgrid(np.arange(15), np.arange(3))
+    sliver = np.stack([40 + 8 * col + 2 * row, 40 + 3 * row], -1).reshape(-1, 2)
+    col, row = np.meshgrid(np.arange(6), np.arange(6))
+    blob = np.stack([300 + 8 * col, 50 + 8 * row], -1).reshape(-1, 2)
+    line = np.stack([40 + 5 * np.arange(40), np.full(40, 300)], -1)
+    small = sliver[sliver[:, 0] < 40 + 8 * 6] + [0, 120]
+    peaks = np.concatenate([sliver, blob, line, small]).astype(np.float64)
+    assert len(small) == 18
+
+    def sizes(clusters):
+        return [len(cluster) for cluster in clusters]
+
+    assert sizes(magnify.loose_clusters(peaks, (), (480, 640))) == [45]
+    np.testing.assert_array_equal(magnify.loose_clusters(peaks, (), (480, 640))[0], sliver)
+    assert sizes(magnify.loose_clusters(peaks, (), (480, 640), any_shape=True)) == [45, 40, 36, 18]

@@ -110,8 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"refuse larger images, checked from the file header before decoding (default {MAX_PIXELS_HELP})")
     p.add_argument("--force", action="store_true", help="redo images that already have a result")
     p.add_argument("--exhaustive", action="store_true",
-                   help="search harder: where the full frame is scored, look at the clusters of responses no board "
-                        "covers, stretched (finds boards seen very steeply; more time per cluttered frame)")
+                   help="search harder: where the full frame is scored, look at every cluster of responses no board "
+                        "covers, stretched, not only the sliver-shaped ones (more time per cluttered frame)")
     p.add_argument("--model", default=None,
                    help=f"bundled model name or .onnx path ({DEFAULT_HELP})")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary line; failures are still listed")

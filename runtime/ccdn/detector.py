@@ -15,9 +15,10 @@ with nothing there costs no full-resolution network). Small squares and frames w
 therefore pay for the shrunk passes, and a board too small to be seen shrunk is lost when another
 board in the same frame has squares big enough (measured in benchmarks/; README). A board the
 full-frame pass finds with sliver squares (a steep view's far end) gets one more look, its
-surroundings magnified (ccdn.magnify). Exhaustive detection (for offline calibration) also looks
-at the clusters of the full-frame pass's score peaks that no board covers, stretched across their
-long axis (ccdn.magnify).
+surroundings magnified (ccdn.magnify), and each sliver-shaped cluster of the full-frame pass's
+score peaks that no board covers gets a look stretched across its long axis (a board seen so
+steeply that no pass links it); exhaustive detection (for offline calibration) looks at every
+such cluster, whatever its shape (ccdn.magnify).
 
 The default detector is a cascade: the shrunk passes run the cheap `fast` model (`fast-int8` on
 CPUs with VNNI: ccdn.models.default_coarse_model), whose one weakness, corners closer than ~5 px (its
@@ -92,10 +93,9 @@ class Detector:
     views (README; benchmarks/stress.py --fast-check). Frames too small to shrink (shorter side
     under 2 x COARSE_MIN_SIDE) and detectors without coarse-to-fine run the full frame as usual.
     exhaustive: for offline calibration, where a view is worth more than its time, like OpenCV's
-    CALIB_CB_EXHAUSTIVE: where the full-frame pass runs, the clusters of its score peaks that no
-    board covers get a look stretched across their long axis (ccdn.magnify.loose_clusters,
-    stretched: a board seen so steeply that no pass finds it). Costs: README. Not with fast_check,
-    its opposite.
+    CALIB_CB_EXHAUSTIVE: where the full-frame pass runs, every cluster of its score peaks that no
+    board covers gets a look stretched across its long axis, not only the sliver-shaped ones
+    (ccdn.magnify.loose_clusters, stretched). Costs: README. Not with fast_check, its opposite.
     detect() is thread-safe: one Detector may serve several threads.
     """
 
@@ -167,7 +167,7 @@ class Detector:
             model = self.model
             boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape)
             xy, values, found, peaks = self._full_frame(gray, boxes, boards, board_size, clock)
-            if self.exhaustive:
+            if self._saddle_boards:
                 xy, values, found = self._loose_looks(gray, xy, values, found, peaks, boards, board_size, clock)
         xy, found = self._on_edges(gray, xy, found, clock)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
@@ -247,9 +247,10 @@ class Detector:
 
     def _loose_looks(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
                      peaks: np.ndarray, boards: bool, board_size, clock: _Clock):
-        """xy, values and boards with exhaustive detection's looks at the clusters of score peaks that
-        no board covers, each stretched across its long axis (ccdn.magnify.stretched), one after the other."""
-        for cluster in loose_clusters(peaks, found, gray.shape):
+        """xy, values and boards with the looks at the clusters of score peaks that no board covers
+        (sliver-shaped ones; exhaustive: all), each stretched across its long axis (ccdn.magnify.stretched),
+        one after the other."""
+        for cluster in loose_clusters(peaks, found, gray.shape, any_shape=self.exhaustive):
             view = stretched(gray, cluster)
             if view is not None:
                 xy, values, found = self._look(*view, xy, values, found, boards, board_size, clock)

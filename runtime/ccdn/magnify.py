@@ -1,18 +1,20 @@
-"""A second look, magnified, at boards seen so steeply that their far squares are slivers.
+"""Second looks, magnified or stretched, at boards seen so steeply that their squares are slivers.
 
 On a steep view the far end of a board thins to squares a few pixels across, which the network,
 trained at 1:1, barely scores and the saddle fit cannot resolve (stress renders: 79 % of corners
 with squares under 4 px across missed, 19 % at 4-6 px, 0.4 % above). When the full-frame pass finds
 a board whose thinnest squares are under THIN_ALTITUDE px across, the detector runs once more on the
 board's surroundings scaled up MAGNIFICATION times (bicubic) and keeps a board found there in place
-of the ones it covers when it has more corners. Frames with no board found pay nothing by default.
+of the ones it covers when it has more corners.
 
-Exhaustive detection (Detector(exhaustive=True)) also looks at the clusters of score peaks that no
-board covers, each resampled along its long axis and stretched STRETCH times across it: a board
-seen so steeply that no pass finds it is a sliver whose cells are sheared flatter than a lattice is
-grown over (ccdn.grid.MIN_SINE), which magnifying keeps (angles do not change), and stretching
-across opens up. On a cluttered frame such looks cost ~30 ms at 640x480 and ~200 ms at 2000x1500,
-hence not by default (README).
+When the full-frame pass runs, the detector also looks at the clusters of score peaks that no
+board covers and that are shaped like a sliver (SLIVER_PEAKS peaks or more, SLIVER_ELONGATION times
+longer than wide), each resampled along its long axis and stretched STRETCH times across it: a
+board seen so steeply that no pass finds it is a sliver whose cells are sheared flatter than a
+lattice is grown over (ccdn.grid.MIN_SINE), which magnifying keeps (angles do not change), and
+stretching across opens up. Exhaustive detection (Detector(exhaustive=True)) looks at every
+cluster of LOOSE_PEAKS or more, whatever its shape: on a cluttered frame ~30 ms more at 640x480
+and 90-190 ms at 2000x1500 (examples/no-board.jpg), where the sliver-shaped ones cost a few ms (README).
 """
 
 from __future__ import annotations
@@ -33,9 +35,14 @@ PAD = (0.25, 8.0)  # the region magnified: the thin boards' corners' bounding bo
 # size and these px each way, where the steep end the pass lost continues
 MAX_SHARE = 0.5  # of the frame's area at most (the magnified pass costs MAGNIFICATION^2 times its pixels)
 SAME_CORNER = 2.0  # px: a magnified board's corner this close to one of a board found before: the same board
-LOOSE_PEAKS = 9  # exhaustive detection: a cluster of at least this many score peaks that no board covers ...
+LOOSE_PEAKS = 9  # a cluster of at least this many score peaks that no board covers ...
 LOOSE_LINK = 12.0  # ... each within this many px of another, is looked at stretched (loose_clusters, stretched) ...
-MAX_LOOKS = 8  # ... the largest this many clusters of a frame
+MAX_LOOKS = 8  # ... the largest this many clusters of a frame; by default only sliver-shaped clusters:
+SLIVER_PEAKS = 30  # at least this many peaks, ...
+SLIVER_ELONGATION = 4.5  # ... their spread (standard deviation) along the long axis this many times that across ...
+SLIVER_WIDTH = 2.0  # ... which is at least this many px (not one line of peaks, such as an edge's). Measured on
+# 1280 stress renders: the 9 looks that found boards had 50-342 peaks, elongations 5.3-24 and widths 2.9-15 px;
+# of the 1159 looks at clusters of any shape, 95 are sliver-shaped, which cost 1.5 of the 17.0 s
 STRETCH = 3.0  # x across a cluster's long axis (measured on 90 extreme-pose renders: 2x magnified
 # isotropically found 8 of the 127 corners of four missed slivers, 3x across alone 109)
 MAX_STRETCHED = 2.0  # x the frame's pixels at most per stretched view
@@ -68,11 +75,13 @@ def _grown_box(xy: np.ndarray, shape: tuple[int, int]) -> tuple[int, int, int, i
     return x0, y0, x1, y1
 
 
-def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[int, int]) -> list[np.ndarray]:
+def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[int, int],
+                   any_shape: bool = False) -> list[np.ndarray]:
     """The clusters (each (K, 2)) of score peaks (N, 2) on a frame of `shape` (h, w) that no board
     covers (COVERED), largest first, at most MAX_LOOKS: a cluster links peaks within LOOSE_LINK px
-    of each other and needs LOOSE_PEAKS of them. On a board seen so steeply that its squares are
-    slivers the network still scores many corners that no pass links (exhaustive detection)."""
+    of each other and needs LOOSE_PEAKS of them; unless any_shape, only sliver-shaped ones
+    (_sliver_shaped). On a board seen so steeply that its squares are slivers the network still
+    scores many corners that no pass links."""
     h, w = shape
     loose = np.asarray(peaks, np.float64).reshape(-1, 2)
     col, row = np.clip(np.rint(loose), 0, (w - 1, h - 1)).astype(np.int64).T  # each peak's pixel
@@ -91,7 +100,18 @@ def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[in
     _, labels = cv2.connectedComponents(cv2.dilate(links, _LINK_DISK), connectivity=8)
     label = labels[row, col]
     counts = np.bincount(label)
-    return [loose[label == k] for k in np.argsort(-counts, kind="stable")[:MAX_LOOKS] if k and counts[k] >= LOOSE_PEAKS]
+    clusters = [loose[label == k] for k in np.argsort(-counts, kind="stable") if k and counts[k] >= LOOSE_PEAKS]
+    return [cluster for cluster in clusters if any_shape or _sliver_shaped(cluster)][:MAX_LOOKS]
+
+
+def _sliver_shaped(cluster: np.ndarray) -> bool:
+    """Whether a cluster of peaks (K, 2) could be a steep view's sliver of board: SLIVER_PEAKS or more,
+    spread SLIVER_ELONGATION times farther along its long axis than across, and across by at least
+    SLIVER_WIDTH px (a lattice's rows, not one line)."""
+    if len(cluster) < SLIVER_PEAKS:
+        return False
+    across, along = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(cluster.T)), 0))
+    return bool(across >= SLIVER_WIDTH and along >= SLIVER_ELONGATION * across)
 
 
 def stretched(gray: np.ndarray, cluster: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
