@@ -8,7 +8,7 @@ their edge lines (ccdn.edges), which use many more pixels: on noisy frames (ccdn
 Frames go coarse-to-fine: the network first runs on the frame shrunk by the largest power of two
 that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x, 4x, then 2x).
 When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass finds boards whose
-squares are that big on the shrunk frame, their corners are refined on the full-resolution image
+squares are that big on the shrunk frame (DEEP_MIN_SQUARE on frames shrunk 4x or more), their corners are refined on the full-resolution image
 and the finer passes are skipped; otherwise the next finer pass runs, down to the full frame, which
 is scored only inside boxes around what the finest shrunk pass responded to (ccdn.regions: a frame
 with nothing there costs no full-resolution network). Small squares and frames without a board
@@ -57,6 +57,9 @@ COARSE_MIN_SIDE = 160  # px: the shorter side of a frame shrunk for a coarse pas
 # (network 27 vs 7 ms); 90 adds a 16x pass at 2000x1500 that never finds the board there
 COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the next finer pass (chosen on the
 # stress renders: at 7 their figures stay those of the full-resolution pass)
+DEEP_MIN_SQUARE = 5.0  # px: the same for the boards a pass on a frame shrunk 4x or more found, whose squares are
+# >= 20 px at full size (2000x1500 real-dev frames found at 8x with 5-7 px squares there ran the 4x pass too, for
+# the same corners: 31-40 against 14-18 ms); 5 at 2x lost corners of steep boards (stress renders, 640x480)
 COARSE_MAX_SHIFT = 3.0  # shrunk px a corner may lie from its peak on a shrunk frame: `fast`'s peaks there can be
 # ~2 px off (its 4x4-pixel output cells; 2.0 lost such a corner: stress partial 0.22 -> 0.11 % missed, the rest as it was)
 FULL_FRAME_UNEVEN_SEEDS = 1  # on the full frame a seed square may have a corner whose quads an occluder's edge
@@ -190,7 +193,8 @@ class Detector:
         if len(xy) < 9 or quantile(gaps, 0.75) < COARSE_MIN_SQUARE:
             return None, None, None, score
         xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
-        if len(xy) < 9 or (median(_gaps(xy)) / scale < COARSE_MIN_SQUARE and not any_squares):
+        least = COARSE_MIN_SQUARE if scale <= 2 else DEEP_MIN_SQUARE
+        if len(xy) < 9 or (median(_gaps(xy)) / scale < least and not any_squares):
             return None, None, None, score
         return xy, values, found, score
 
