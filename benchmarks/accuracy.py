@@ -190,7 +190,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--filter", default="grid", help="false-corner filter: grid (default), kmeans (paper), none")
     parser.add_argument("--no-coarse", action="store_true", help="always run the network at full resolution")
     parser.add_argument("--fast-check", action="store_true", help="Detector(fast_check=True): never at full resolution")
-    parser.add_argument("--exhaustive", action="store_true", help="Detector(exhaustive=True): a stretched look at every loose cluster of peaks")
+    parser.add_argument("--exhaustive", action="store_true",
+                        help="Detector(exhaustive=True): a stretched look at every loose cluster of peaks")
     parser.add_argument("--synthetic", type=int, default=60, help="number of renders (plus a third as many boardless)")
     parser.add_argument("--seed", type=int, default=5_000_000)
     parser.add_argument("--no-real-dev", action="store_true", help="renders only (e.g. to choose between checkpoints)")

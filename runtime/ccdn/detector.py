@@ -8,12 +8,13 @@ their edge lines (ccdn.edges), which use many more pixels: on noisy frames (ccdn
 Frames go coarse-to-fine: the network first runs on the frame shrunk by the largest power of two
 that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x, 4x, then 2x).
 When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass finds boards whose
-squares are that big on the shrunk frame (DEEP_MIN_SQUARE on frames shrunk 4x or more), their corners are refined on the full-resolution image
-and the finer passes are skipped; otherwise the next finer pass runs, down to the full frame, which
-is scored only inside boxes around what the finest shrunk pass responded to (ccdn.regions: a frame
-with nothing there costs no full-resolution network). Small squares and frames without a board
-therefore pay for the shrunk passes, and a board too small to be seen shrunk is lost when another
-board in the same frame has squares big enough (measured in benchmarks/; README). A board the
+squares are that big on the shrunk frame (DEEP_MIN_SQUARE on frames shrunk 4x or more), their
+corners are refined on the full-resolution image and the finer passes are skipped; otherwise the
+next finer pass runs, down to the full frame, which is scored only inside boxes around what the
+finest shrunk pass responded to (ccdn.regions: a frame with nothing there costs no full-resolution
+network). Small squares and frames without a board therefore pay for the shrunk passes, and a
+board too small to be seen shrunk is lost when another board in the same frame has squares big
+enough (measured in benchmarks/; README). A board the
 full-frame pass finds with sliver squares (a steep view's far end) gets one more look, its
 surroundings magnified (ccdn.magnify), and each sliver-shaped cluster of the full-frame pass's
 score peaks that no board covers gets a look stretched across its long axis (a board seen so

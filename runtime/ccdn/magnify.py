@@ -100,18 +100,24 @@ def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[in
     _, labels = cv2.connectedComponents(cv2.dilate(links, _LINK_DISK), connectivity=8)
     label = labels[row, col]
     counts = np.bincount(label)
-    clusters = [loose[label == k] for k in np.argsort(-counts, kind="stable") if k and counts[k] >= LOOSE_PEAKS]
+    least = LOOSE_PEAKS if any_shape else max(LOOSE_PEAKS, SLIVER_PEAKS)
+    clusters = [loose[label == k] for k in np.argsort(-counts, kind="stable") if k and counts[k] >= least]
     return [cluster for cluster in clusters if any_shape or _sliver_shaped(cluster)][:MAX_LOOKS]
 
 
 def _sliver_shaped(cluster: np.ndarray) -> bool:
-    """Whether a cluster of peaks (K, 2) could be a steep view's sliver of board: SLIVER_PEAKS or more,
-    spread SLIVER_ELONGATION times farther along its long axis than across, and across by at least
+    """Whether a cluster of peaks (K, 2) could be a steep view's sliver of board: spread
+    SLIVER_ELONGATION times farther along its long axis than across, and across by at least
     SLIVER_WIDTH px (a lattice's rows, not one line)."""
-    if len(cluster) < SLIVER_PEAKS:
-        return False
-    across, along = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(cluster.T)), 0))
+    (across, along), _ = _principal_axes(cluster)
     return bool(across >= SLIVER_WIDTH and along >= SLIVER_ELONGATION * across)
+
+
+def _principal_axes(cluster: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The spreads (standard deviations, px) of points (K, 2) across and along their long axis, and
+    those axes as the columns of a (2, 2) array, the long one last."""
+    variances, axes = np.linalg.eigh(np.cov(cluster.T))
+    return np.sqrt(np.maximum(variances, 0)), axes
 
 
 def stretched(gray: np.ndarray, cluster: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -122,8 +128,7 @@ def stretched(gray: np.ndarray, cluster: np.ndarray) -> tuple[np.ndarray, np.nda
     flatter than a lattice is grown over (ccdn.grid.MIN_SINE: stress renders' missed slivers, sines
     0.18-0.31): stretched across, its cells open up (sine 0.25 -> ~0.6 at 3x) and its squares widen."""
     centre = cluster.mean(0)
-    _, axes = np.linalg.eigh(np.cov((cluster - centre).T))
-    along = axes[:, 1]
+    along = _principal_axes(cluster)[1][:, 1]
     to_image = np.stack([along, STRETCH * np.array([-along[1], along[0]])])  # (2, 2): frame offsets -> image
     projected = (cluster - centre) @ to_image.T
     low, high = projected.min(0), projected.max(0)
