@@ -391,6 +391,23 @@ def test_a_board_continues_past_a_line_the_shadows_edge_hides():
     assert any(np.diff(line).max() == 2 for line in lines)  # corners on both sides of an empty line
 
 
+def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
+    """A shadow's blurred edge through a corner curves its grey levels more than a quadric holds: no
+    saddle fit finds it on either scale (the stress set's shadow render 7160182: 14 of 24 corners,
+    measured, the rest along and beyond the shadow's edge). Completion then takes the crossing of
+    the corner's lattice lines fitted to its squares' edges on the log scale, where each of its
+    four half-edges shows at least half the strongest one's contrast (ccdn.grid.EVEN_EDGES; on a
+    board's outline one runs into the margin): 21 true corners now, in one board."""
+    scene = stress_scene("shadow", 7_160_182)
+    found = ccdn.Detector(threads=2).detect(scene.image)
+    assert len(scene.corners) == 24 and [len(board) for board in found.boards] == [22]
+    off = nearest_distances(scene.corners, found.xy)  # each found corner's distance to the nearest true one
+    assert (off < 1.5).sum() >= 21 and np.median(off) < 0.1
+    assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 21
+    monkeypatch.setattr("ccdn.grid.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone
+    assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 15
+
+
 def test_a_steep_views_narrow_squares_complete_without_taking_the_tips_between_them():
     """A board tilted ~70 degrees: sheared squares 4.5-6 px across, the network's peaks on part of
     them (the stress set's extreme-pose render 7100011: 40 of 156 corners before). Completion's saddle

@@ -23,6 +23,10 @@ renders (exact labels, every board corner found) that took the mean error from 0
 held-out sample of as many renders 0.039 -> 0.027 px (with three fits per corner; two, now, gave 0.023 px
 on the benchmark's renders).
 
+ccdn.grid's completion also places corners in shade that no saddle fit finds at their edge lines'
+crossing, on the log scale of grey, where half_edge_contrast tells a lattice corner (four half-edges)
+from a point on a board's outline (three).
+
 Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 """
 
@@ -31,10 +35,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from typing import TYPE_CHECKING
+
 from .checker import altitude
-from .grid import Board
 from .refine import kernel_size
 from .stats import median, nanmedian_rows
+
+if TYPE_CHECKING:  # ccdn.grid fits corners on their edges too: imported at run time, Board would be circular
+    from .grid import Board
 
 NOISY_SIGMA = 5.0  # grey levels of image noise from which board corners are refined on their edges
 NOISE_SAMPLE_PIXELS = 1 << 15  # the noise estimate's median is taken over about this many pixels (1 << 17 made
@@ -121,13 +129,10 @@ def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tupl
     start -= origin  # in the smoothed crop's pixels from here
     current = start.copy()
     m = len(xy)
-    # both lattice lines of every corner in one pass: the line along the columns (+col / -col steps)
-    # is as wide as the row steps are long, and back
-    forward, backward = np.concatenate([steps[:, 0], steps[:, 2]]), np.concatenate([steps[:, 1], steps[:, 3]])
-    across = np.concatenate([lengths[:, 2:].mean(1), lengths[:, :2].mean(1)])
+    forward, backward, across = _lines(steps, lengths)
     moved = np.zeros(m, bool)
     for _ in range(ITERATIONS):
-        offsets, normals = _edge_lines(image, frame, np.concatenate([current, current]), forward, backward, across)
+        offsets, normals, _ = _edge_lines(image, frame, np.concatenate([current, current]), forward, backward, across)
         normals = normals.reshape(2, m, 2).transpose(1, 0, 2)  # (M, 2 lines, 2)
         offsets = offsets.reshape(2, m).T  # (M, 2)
         solvable = np.isfinite(offsets).all(1) & np.isfinite(normals).all((1, 2))
@@ -137,6 +142,30 @@ def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tupl
         moved = solvable & (np.linalg.norm(current + shift - start, axis=1) <= MAX_MOVE)
         current = np.where(moved[:, None], current + shift, start)
     return (current + origin).astype(np.float32), moved
+
+
+def half_edge_contrast(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """(M, 4): the median contrast (absolute) across each of corners xy's (M, 2) four half-edges,
+    towards +col, -col, +row, -row (lattice steps (M, 4, 2) as for refine_on_edges), in gray's units,
+    NaN where no profile is on the image: a lattice corner has four, a point on a board's outline
+    three (the fourth runs into the margin)."""
+    if len(xy) == 0:
+        return np.zeros((0, 4))
+    start = xy.astype(np.float64)
+    lengths = np.linalg.norm(steps, axis=2)
+    image, origin, frame = _smoothed_around(gray, start, lengths)
+    start -= origin
+    _, _, typical = _edge_lines(image, frame, np.concatenate([start, start]), *_lines(steps, lengths))
+    forward, backward = typical.reshape(2, 2, -1)  # (+col, +row) then (-col, -row) half-edges, each (M,)
+    return np.stack([forward[0], backward[0], forward[1], backward[1]], 1)
+
+
+def _lines(steps: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """_edge_lines' forward and backward steps and widths for both lattice lines of every corner (steps
+    (M, 4, 2), their lengths (M, 4)), in one pass: the line along the columns (+col / -col steps) is
+    as wide as the row steps are long, and back."""
+    forward, backward = np.concatenate([steps[:, 0], steps[:, 2]]), np.concatenate([steps[:, 1], steps[:, 3]])
+    return forward, backward, np.concatenate([lengths[:, 2:].mean(1), lengths[:, :2].mean(1)])
 
 
 def _smoothed_around(gray: np.ndarray, xy: np.ndarray, lengths: np.ndarray):
@@ -161,7 +190,8 @@ def _edge_lines(image: np.ndarray, frame: tuple[int, int, int, int], xy: np.ndar
     """The lattice lines through points xy along steps `forward` / `backward` (L, 2) (to the two
     neighbours on each; `across`: the step length perpendicular to it), sampled on `image` whose
     frame (x_min, y_min, x_max, y_max) bounds the samples that count: each line's offset (L,)
-    from xy along its unit normal (L, 2), NaN where too few edge profiles are usable."""
+    from xy along its unit normal (L, 2), NaN where too few edge profiles are usable, and each
+    half-edge's median absolute contrast (2L,: the forward half-edges, then the backward ones)."""
     n = len(xy)
     direction = forward - backward
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
@@ -210,7 +240,7 @@ def _edge_lines(image: np.ndarray, frame: tuple[int, int, int, int], xy: np.ndar
         ok &= residual <= 3 * np.maximum(spread, 0.05)
     a, _ = _weighted_line(t, s, ok)
     a[ok.sum(1) < 5] = np.nan
-    return a, normal
+    return a, normal, typical[:, 0]
 
 
 def _weighted_line(t: np.ndarray, s: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -56,8 +56,14 @@ background loses both alike), it is fitted again on the log scale of grey, where
 factor is an offset and the squares keep the lit ones' contrast (stress shadow renders: 150 -> 109
 of 3819 corners missed over 60 renders, those found 0.13 px off the truth (median); 1440 renders
 of the other subsets: 3 occluded corners more, no false positive more; without the log-scale share,
-a board's outline took a false corner). When that adds nothing, completion also asks the image two
-positions beyond the frontier along rows and columns, where the four quads alternate in the
+a board's outline took a false corner). Where neither scale's fit finds a saddle (a shadow's blurred
+edge through the corner curves the grey levels more than a quadric holds), the corner is the
+crossing of its lattice lines fitted to its squares' edges on the log scale (ccdn.edges), taken
+where each of its four half-edges shows at least EVEN_EDGES of the strongest one's contrast (on a
+board's outline one runs into the margin: without this test a radial and a two-boards render took
+2 false corners each): shadow renders 109 -> 92 missed, 1440 others unchanged. When that adds
+nothing, completion also asks the image two positions beyond the frontier along rows and columns,
+where the four quads alternate in the
 board's sign at their centres (one box each, a cheap look before the strict test): a shadow's sharp
 edge along a line of corners darkens two quads of each, so that line fails the test, and the board
 past it was lost (stress shadow renders: 15 of 165 missed corners over 60 renders found; 1440
@@ -114,6 +120,7 @@ import numpy as np
 
 from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differences, quad_differences, quad_levels,
                       quad_means, quad_spread, x_like)
+from .edges import half_edge_contrast, refine_on_edges
 from .refine import refine_saddle_points, window_for_spacing
 from .stats import median, nanmedian_rows
 
@@ -157,6 +164,7 @@ EDGE_MARGIN = 1.5  # px: a corner closer to the frame's edge joins no board: the
 # corners out too (ccdn_training.synth), their saddle window is mostly off the frame, and where the frame's edge
 # cuts a board's outline, its one visible quad pair passes the image test like a corner's
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
+EVEN_EDGES = 0.5  # completion's edge-line fit in shade: each half-edge's log-scale contrast >= this x the strongest's
 SHADED_CONTRAST = 0.85  # completion's strict test also passes on the quads sampled NEAR_QUADS of the way where
 # their grey-level contrast is below this x the seed's (or above 1 / this): a corner in other light than the seed's
 _LOG_GREY = (255 * np.log1p(np.arange(256) / SHADE_OFFSET) / np.log1p(255 / SHADE_OFFSET)).astype(np.float32)
@@ -504,6 +512,8 @@ class _Grower:
         if shaded.any():
             points[shaded], good[shaded] = refine_saddle_points(self._log_gray(), preds[shaded], radius, 0.4 * radius,
                                                                 narrow=narrow[shaded], **fit)
+        if (on_edges := shaded & ~good).any():  # no saddle on either scale: the crossing of its edge lines
+            points[on_edges], good[on_edges] = self._on_edge_lines(preds[on_edges], u[on_edges], v[on_edges])
         points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
@@ -540,6 +550,17 @@ class _Grower:
         # the median over its corners, skipping those (NaN) without a quad pair on the image
         board_log = nanmedian_rows(_contrast(board_levels, self._signs(board), log=True)[None])[0]
         return (grey < SHADED_CONTRAST) & (_contrast(levels, sign, log=True) / board_log > grey)
+
+    def _on_edge_lines(self, preds: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Corners in shade that no saddle fit finds (a shadow's edge across the corner curves the
+        grey levels more than the quadric holds), at the crossing of their lattice lines fitted to
+        the squares' edges on the log scale (ccdn.edges), from predictions preds (K, 2) with steps u,
+        v: (K, 2) points and whether each is a corner there, its four half-edges each at least
+        EVEN_EDGES of the strongest one's contrast (on a board's outline, one runs into the margin)."""
+        steps = np.stack([u, -u, v, -v], 1)
+        points, moved = refine_on_edges(self._log_gray(), preds, steps)
+        contrast = half_edge_contrast(self._log_gray(), points, steps)
+        return points, moved & (contrast.min(1) >= EVEN_EDGES * contrast.max(1))  # NaN (off the image): not
 
     def _log_gray(self) -> np.ndarray:
         """The frame's grey levels on the log scale (_LOG_GREY), made at the first call."""
