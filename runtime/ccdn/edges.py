@@ -32,10 +32,10 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
-
-from typing import TYPE_CHECKING
 
 from .checker import altitude
 from .refine import kernel_size

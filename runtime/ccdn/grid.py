@@ -63,11 +63,11 @@ where each of its four half-edges shows at least EVEN_EDGES of the strongest one
 board's outline one runs into the margin: without this test a radial and a two-boards render took
 2 false corners each): shadow renders 109 -> 92 missed, 1440 others unchanged. When that adds
 nothing, completion also asks the image two positions beyond the frontier along rows and columns,
-where the four quads alternate in the
-board's sign at their centres (one box each, a cheap look before the strict test): a shadow's sharp
-edge along a line of corners darkens two quads of each, so that line fails the test, and the board
-past it was lost (stress shadow renders: 15 of 165 missed corners over 60 renders found; 1440
-renders of the other subsets unchanged); the line left between stays holes unless completion then fills it.
+where the four quads alternate in the board's sign at their centres (one box each, a cheap look
+before the strict test): a shadow's sharp edge along a line of corners darkens two quads of each,
+so that line fails the test, and the board past it was lost (stress shadow renders: 15 of 165
+missed corners over 60 renders found; 1440 renders of the other subsets unchanged); the line left
+between stays holes unless completion then fills it.
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
 level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
