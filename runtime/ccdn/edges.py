@@ -123,16 +123,12 @@ def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tupl
     (corners whose lines cannot be fitted keep their position)."""
     if len(xy) == 0:
         return np.zeros((0, 2), np.float32), np.zeros(0, bool)
-    start = xy.astype(np.float64)
-    lengths = np.linalg.norm(steps, axis=2)
-    image, origin, frame = _smoothed_around(gray, start, lengths)
-    start -= origin  # in the smoothed crop's pixels from here
+    image, origin, frame, start, lines = _prepared(gray, xy, steps)
     current = start.copy()
     m = len(xy)
-    forward, backward, across = _lines(steps, lengths)
     moved = np.zeros(m, bool)
     for _ in range(ITERATIONS):
-        offsets, normals, _ = _edge_lines(image, frame, np.concatenate([current, current]), forward, backward, across)
+        offsets, normals, _ = _edge_lines(image, frame, np.concatenate([current, current]), *lines)
         normals = normals.reshape(2, m, 2).transpose(1, 0, 2)  # (M, 2 lines, 2)
         offsets = offsets.reshape(2, m).T  # (M, 2)
         solvable = np.isfinite(offsets).all(1) & np.isfinite(normals).all((1, 2))
@@ -151,21 +147,23 @@ def half_edge_contrast(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> n
     three (the fourth runs into the margin)."""
     if len(xy) == 0:
         return np.zeros((0, 4))
-    start = xy.astype(np.float64)
-    lengths = np.linalg.norm(steps, axis=2)
-    image, origin, frame = _smoothed_around(gray, start, lengths)
-    start -= origin
-    _, _, typical = _edge_lines(image, frame, np.concatenate([start, start]), *_lines(steps, lengths))
+    image, _, frame, start, lines = _prepared(gray, xy, steps)
+    _, _, typical = _edge_lines(image, frame, np.concatenate([start, start]), *lines)
     forward, backward = typical.reshape(2, 2, -1)  # (+col, +row) then (-col, -row) half-edges, each (M,)
     return np.stack([forward[0], backward[0], forward[1], backward[1]], 1)
 
 
-def _lines(steps: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """_edge_lines' forward and backward steps and widths for both lattice lines of every corner (steps
-    (M, 4, 2), their lengths (M, 4)), in one pass: the line along the columns (+col / -col steps) is
-    as wide as the row steps are long, and back."""
+def _prepared(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray):
+    """What _edge_lines needs for corners xy (M, 2) with lattice steps (M, 4, 2): the smoothed crop
+    (_smoothed_around), its origin and frame, xy in the crop's pixels, and the forward and backward
+    steps and widths of both lattice lines of every corner, sampled in one pass (the line along the
+    columns, +col / -col steps, is as wide as the row steps are long, and back)."""
+    start = xy.astype(np.float64)
+    lengths = np.linalg.norm(steps, axis=2)
+    image, origin, frame = _smoothed_around(gray, start, lengths)
     forward, backward = np.concatenate([steps[:, 0], steps[:, 2]]), np.concatenate([steps[:, 1], steps[:, 3]])
-    return forward, backward, np.concatenate([lengths[:, 2:].mean(1), lengths[:, :2].mean(1)])
+    across = np.concatenate([lengths[:, 2:].mean(1), lengths[:, :2].mean(1)])
+    return image, origin, frame, start - origin, (forward, backward, across)
 
 
 def _smoothed_around(gray: np.ndarray, xy: np.ndarray, lengths: np.ndarray):

@@ -557,9 +557,9 @@ class _Grower:
         the squares' edges on the log scale (ccdn.edges), from predictions preds (K, 2) with steps u,
         v: (K, 2) points and whether each is a corner there, its four half-edges each at least
         EVEN_EDGES of the strongest one's contrast (on a board's outline, one runs into the margin)."""
-        steps = np.stack([u, -u, v, -v], 1)
-        points, moved = refine_on_edges(self._log_gray(), preds, steps)
-        contrast = half_edge_contrast(self._log_gray(), points, steps)
+        steps, log_gray = np.stack([u, -u, v, -v], 1), self._log_gray()
+        points, moved = refine_on_edges(log_gray, preds, steps)
+        contrast = half_edge_contrast(log_gray, points, steps)
         return points, moved & (contrast.min(1) >= EVEN_EDGES * contrast.max(1))  # NaN (off the image): not
 
     def _log_gray(self) -> np.ndarray:

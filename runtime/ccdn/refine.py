@@ -28,6 +28,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 METHODS = ("saddle", "cornersubpix", "none")
 SUBPIXEL_ITERATIONS = 2
 NARROW_RADIUS = 2
+REFIT_FAILED_RADIUS = 4  # windows from this radius whose fit, cut by the frame's edge, failed are fitted again smaller
 
 
 def window_for_spacing(spacing: float) -> int:
@@ -169,16 +170,16 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     ok &= (refined[:, 0] >= 0) & (refined[:, 0] <= w - 1) & (refined[:, 1] >= 0) & (refined[:, 1] <= h - 1)
     # a window cut by the frame's edge is lopsided, which biases the fit (measured: 0.7-1.4 px at
     # 1-3 px from the edge): such corners are fitted again with the largest window that fits (>= 2),
-    # except by a rough pass, whose result only starts a fine pass that does this itself; a fit of
-    # radius 3 that failed is not tried again: most such are score peaks on the frame's outermost
-    # pixels (0.7 ms per 640x480 real photo), while its cut window fails on few corners (measured on
-    # renders: 2 of 181 at 1.5 px from the edge, none farther in; radius 4: 13, radius 5: 111)
+    # except by a rough pass, whose result only starts a fine pass that does this itself; a failed
+    # fit only from REFIT_FAILED_RADIUS: most failed fits of radius 3 are score peaks on the frame's
+    # outermost pixels (0.7 ms per 640x480 real photo), while its cut window fails on few corners
+    # (measured on renders: 2 of 181 at 1.5 px from the edge, none farther in; radius 4: 13, 5: 111)
     refined = np.where(ok[:, None], refined, start)
     if not rough:
         edge = np.floor(np.minimum(np.minimum(refined[:, 0], w - 1 - refined[:, 0]),
                                    np.minimum(refined[:, 1], h - 1 - refined[:, 1]))).astype(np.int64)
         for small in range(2, radius):  # one call per window (_smoothed_around smooths only near the corners)
-            group = (np.clip(edge, 2, radius) == small) & (ok | (radius > 3))
+            group = (np.clip(edge, 2, radius) == small) & (ok | (radius >= REFIT_FAILED_RADIUS))
             if group.any():
                 refined[group], ok[group] = refine_saddle_points(gray, refined[group], small, 0.4 * small, iterations,
                                                                  max_shift, min_saddle)
