@@ -397,15 +397,31 @@ def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
     measured, the rest along and beyond the shadow's edge). Completion then takes the crossing of
     the corner's lattice lines fitted to its squares' edges on the log scale, where each of its
     four half-edges shows at least half the strongest one's contrast (ccdn.grid.EVEN_EDGES; on a
-    board's outline one runs into the margin): 21 true corners now, in one board."""
+    board's outline one runs into the margin): at least 21 true corners now, in one board."""
     scene = stress_scene("shadow", 7_160_182)
     found = ccdn.Detector(threads=2).detect(scene.image)
-    assert len(scene.corners) == 24 and [len(board) for board in found.boards] == [22]
+    assert len(scene.corners) == 24 and len(found.boards) == 1 and len(found.boards[0]) >= 22
     off = nearest_distances(scene.corners, found.xy)  # each found corner's distance to the nearest true one
     assert (off < 1.5).sum() >= 21 and np.median(off) < 0.1
     assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 21
     monkeypatch.setattr("ccdn.grid.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone
     assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 15
+
+
+def test_a_gap_on_a_shadows_edge_is_filled_from_its_edge_lines(monkeypatch):
+    """A shadow's edge across a board makes the corners along it fail completion's strict image test
+    at their predictions (a quad half lit, or a lit dark square lighter than a shaded light one): the
+    board grows around them and leaves a gap (the stress set's shadow render 7160033: 73 of 81
+    corners, measured). Where the board holds a prediction's neighbours on both sides and its quads
+    look like the board's in shade, the edge-line fit is asked directly (ccdn.grid._on_shadows_edge):
+    77 now, every one a true corner."""
+    scene = stress_scene("shadow", 7_160_033)
+    found = ccdn.Detector(threads=2).detect(scene.image)
+    assert len(scene.corners) == 81 and len(found.boards) == 1
+    assert (nearest_distances(scene.corners, found.xy) < 1.5).all()  # each found corner near a true one
+    assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 76  # true corners found
+    monkeypatch.setattr("ccdn.grid._Grower._on_shadows_edge", lambda self, cells, *rest: np.zeros(len(cells), bool))
+    assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 74
 
 
 def test_a_steep_views_narrow_squares_complete_without_taking_the_tips_between_them():

@@ -496,30 +496,40 @@ class _Grower:
         ok = (np.isfinite(tol) & (preds[:, 0] >= 0) & (preds[:, 0] <= w - 1) & (preds[:, 1] >= 0)
               & (preds[:, 1] <= h - 1))
         # the strict image test at the predictions first: a saddle fit costs ~30x more, and around a
-        # board most predictions fall on its margin, where no quads alternate evenly
-        ok[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], True, COMPLETION_MIN_PAIRS, near=True)
-        cells, preds, tol, u, v = cells[ok], preds[ok], tol[ok], u[ok], v[ok]
+        # board most predictions fall on its margin, where no quads alternate evenly; predictions that
+        # fail it on a shadow's edge (_on_shadows_edge) are fitted on their edge lines alone
+        strict = ok.copy()
+        strict[ok] = self._accepts(cells[ok], preds[ok], u[ok], v[ok], True, COMPLETION_MIN_PAIRS, near=True)
+        edge_only = ok & ~strict
+        if edge_only.any():
+            edge_only[edge_only] = self._on_shadows_edge(cells[edge_only], preds[edge_only], u[edge_only],
+                                                         v[edge_only])
+        tried = strict | edge_only
+        cells, preds, tol, u, v, edge_only = (part[tried] for part in (cells, preds, tol, u, v, edge_only))
         if len(cells) == 0:
             return False
         typical = float(median(tol))
         radius = window_for_spacing(typical / TOLERANCE)
         narrow = altitude(u, v) < NARROW_ALTITUDE * radius
         fit = {"max_shift": float(tol.max()), "wide": int(np.clip(typical, radius + 2, 8))}
-        points, good = refine_saddle_points(self.gray, preds, radius, 0.4 * radius, narrow=narrow, **fit)
-        shaded = ~good
+        saddle = ~edge_only
+        points, good = preds.copy(), np.zeros(len(preds), bool)
+        points[saddle], good[saddle] = refine_saddle_points(self.gray, preds[saddle], radius, 0.4 * radius,
+                                                            narrow=narrow[saddle], **fit)
+        shaded = saddle & ~good
         if shaded.any():  # failed fits where the quads look like the board's in shade: again on the log scale
             shaded[shaded] = self._in_shade(cells[shaded], preds[shaded], u[shaded], v[shaded])
         if shaded.any():
             points[shaded], good[shaded] = refine_saddle_points(self._log_gray(), preds[shaded], radius, 0.4 * radius,
                                                                 narrow=narrow[shaded], **fit)
-        if (on_edges := shaded & ~good).any():  # no saddle on either scale: the crossing of its edge lines
+        if (on_edges := (shaded & ~good) | edge_only).any():  # no saddle on either scale: its edge lines' crossing
             points[on_edges], good[on_edges] = self._on_edge_lines(preds[on_edges], u[on_edges], v[on_edges])
-        points = points.astype(np.float64)
         shift = np.linalg.norm(points - preds, axis=1)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
         good &= _inside(points, self.gray.shape)
-        good[good] &= self._accepts(cells[good], points[good], u[good], v[good], True, COMPLETION_MIN_PAIRS,
-                                    near=True)
+        if (again := good & saddle).any():  # edge_only's are judged by their half-edges instead (_on_edge_lines)
+            good[again] = self._accepts(cells[again], points[again], u[again], v[again], True, COMPLETION_MIN_PAIRS,
+                                        near=True)
         good[good] &= self._straight(cells[good], points[good])
         taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
         if len(taken):
@@ -550,6 +560,21 @@ class _Grower:
         # the median over its corners, skipping those (NaN) without a quad pair on the image
         board_log = nanmedian_rows(_contrast(board_levels, self._signs(board), log=True)[None])[0]
         return (grey < SHADED_CONTRAST) & (_contrast(levels, sign, log=True) / board_log > grey)
+
+    def _on_shadows_edge(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(K,) whether predictions at points (canvas cells, steps u, v) that failed the strict image
+        test lie on a shadow's edge across the board: the board holds the cell's neighbours on both
+        sides along its row or its column (a gap in the board; beyond its outline, the margin's quads
+        fail the test too: with two neighbours at a right angle allowed, a board's outline next to
+        clutter took 2 false corners on 1500 renders) and its quads look like the board's in shade
+        (_in_shade). There the shadow's edge makes a quad non-uniform, or a lit dark square lighter
+        than a shaded light one, while the corner's four edges still show (_on_edge_lines judges them)."""
+        filled = self.idx >= 0
+        r, c = cells[:, 0], cells[:, 1]
+        ok = (filled[r, c - 1] & filled[r, c + 1]) | (filled[r - 1, c] & filled[r + 1, c])
+        if ok.any():
+            ok[ok] = self._in_shade(cells[ok], points[ok], u[ok], v[ok])
+        return ok
 
     def _on_edge_lines(self, preds: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Corners in shade that no saddle fit finds (a shadow's edge across the corner curves the
