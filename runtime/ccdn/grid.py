@@ -490,8 +490,8 @@ class _Grower:
 
     def _complete(self, cells: np.ndarray, support: tuple[np.ndarray, ...]) -> bool:
         """One round of completion over the frontier `cells` (with their _support): the image's
-        saddle points near the predictions (one vectorised fit), added where they pass the image
-        test; True if any was."""
+        saddle points near the predictions (one vectorised fit; in shade also the crossings of their
+        edge lines), added where they pass the image test; True if any was."""
         untried = ~self.tried[cells[:, 0], cells[:, 1]]
         if not untried.any():
             return False
@@ -584,7 +584,8 @@ class _Grower:
 
     def _on_edge_lines(self, preds: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Corners in shade that no saddle fit finds (a shadow's edge across the corner curves the
-        grey levels more than the quadric holds), at the crossing of their lattice lines fitted to
+        grey levels more than the quadric holds) or that fail the strict image test on a shadow's
+        edge (_on_shadows_edge), at the crossing of their lattice lines fitted to
         the squares' edges on the log scale (ccdn.edges), from predictions preds (K, 2) with steps u,
         v: (K, 2) points and whether each is a corner there, its four half-edges each at least
         EVEN_EDGES of the strongest one's contrast (on a board's outline, one runs into the margin)."""
