@@ -585,10 +585,10 @@ class _Grower:
     def _on_edge_lines(self, preds: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Corners in shade that no saddle fit finds (a shadow's edge across the corner curves the
         grey levels more than the quadric holds) or that fail the strict image test on a shadow's
-        edge (_on_shadows_edge), at the crossing of their lattice lines fitted to
-        the squares' edges on the log scale (ccdn.edges), from predictions preds (K, 2) with steps u,
-        v: (K, 2) points and whether each is a corner there, its four half-edges each at least
-        EVEN_EDGES of the strongest one's contrast (on a board's outline, one runs into the margin)."""
+        edge (_on_shadows_edge), at the crossing of their lattice lines fitted to the squares' edges
+        on the log scale (ccdn.edges), from predictions preds (K, 2) with steps u, v: (K, 2) points
+        and whether each is a corner there, its four half-edges each at least EVEN_EDGES of the
+        strongest one's contrast (on a board's outline, one runs into the margin)."""
         steps, log_gray = np.stack([u, -u, v, -v], 1), self._log_gray()
         points, moved = refine_on_edges(log_gray, preds, steps)
         contrast = half_edge_contrast(log_gray, points, steps)

@@ -59,13 +59,8 @@ def thin_region(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[int,
     thin = [board.xy for board in boards if _thinnest(board) < THIN_ALTITUDE]
     if not thin:
         return None
-    return _grown_box(np.concatenate(thin).astype(np.float64), shape)
-
-
-def _grown_box(xy: np.ndarray, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
-    """(x0, y0, x1, y1): the bounding box of points xy (N, 2) grown by PAD, within a frame of `shape`;
-    None when it covers more than MAX_SHARE of the frame."""
-    low, high = xy.min(0), xy.max(0)
+    xy = np.concatenate(thin).astype(np.float64)
+    low, high = xy.min(0), xy.max(0)  # their bounding box, grown by PAD, at most MAX_SHARE of the frame
     pad = PAD[0] * (high - low) + PAD[1]
     h, w = shape
     x0, y0 = np.maximum(np.floor(low - pad), 0).astype(np.int64).tolist()
