@@ -46,14 +46,15 @@ def validate(model: torch.nn.Module, bank: SceneBank, radius: float = 3.0, relat
     """Precision, recall and F1 on full validation scenes of 5x5 local maxima above the runtime's
     threshold, max(relative * max score, floor): the balanced loss makes scores relative, not absolute."""
     model.eval()
+    device = next(model.parameters()).device
     tp = fp = fn = 0
     errors = []
     for image, corners, ignore in zip(bank.images, bank.corners, bank.ignore):
-        x = torch.from_numpy(image.astype(np.float32) / 255)[None, None]
+        x = torch.from_numpy(image.astype(np.float32) / 255)[None, None].to(device)
         score = model(x.contiguous(memory_format=torch.channels_last))
         threshold = max(relative * float(score.max()), floor)
         peaks = (score == F.max_pool2d(score, 5, 1, 2)) & (score >= threshold)
-        ys, xs = np.nonzero(peaks[0, 0].numpy())
+        ys, xs = np.nonzero(peaks[0, 0].cpu().numpy())
         det = np.stack([xs, ys], 1).astype(np.float32)
         if len(ignore) and len(det):
             near_ignored = np.linalg.norm(det[:, None] - ignore[None], axis=2).min(1) < radius
@@ -101,13 +102,13 @@ def train(args: argparse.Namespace) -> None:
     model.reset_parameters_paper()
     if args.init_from:  # warm start from another run's weights (recorded in the recipe)
         model.load_state_dict(initial_weights(args.init_from))
-    model = model.to(memory_format=torch.channels_last)
+    model = model.to(args.device, memory_format=torch.channels_last)
     optimizer = make_optimizer(model, args.recipe)
     rng = np.random.default_rng(args.seed)
     step, best_f1 = 0, -1.0
     last = args.out / "last.pt"
     if args.resume and last.exists():
-        state = torch.load(last, weights_only=False)
+        state = torch.load(last, map_location=args.device, weights_only=False)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         rng.bit_generator.state = state["rng"]
@@ -130,8 +131,8 @@ def train(args: argparse.Namespace) -> None:
         for group in optimizer.param_groups:
             group["lr"] = lr
         xs, ys = bank.crops(rng, args.batch, args.crop)
-        x = torch.from_numpy(xs)[:, None].contiguous(memory_format=torch.channels_last)
-        y = torch.from_numpy(ys)[:, None]
+        x = torch.from_numpy(xs)[:, None].to(args.device).contiguous(memory_format=torch.channels_last)
+        y = torch.from_numpy(ys)[:, None].to(args.device)
         loss = ccdn_loss(model(x, pre_activation=True), y, model, args.weight_decay)
         optimizer.zero_grad()
         loss.backward()
@@ -177,6 +178,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--clip-grad", type=float, default=1.0, help="gradient norm clip (0: off)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--device", default="cpu", help="torch device to train on, e.g. cuda (checkpoints load on any)")
     parser.add_argument("--log-every", type=int, default=50)
     parser.add_argument("--val-every", type=int, default=500)
     parser.add_argument("--checkpoint-every", type=int, default=250)
