@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import onnxruntime as ort
 import pytest
@@ -182,6 +184,25 @@ def test_banks_render_with_overrides_and_load_together(tmp_path):
     np.testing.assert_array_equal(bank.images[2], steep.image)
     xs, ys = bank.crops(np.random.default_rng(0), 8, 96)
     assert xs.shape == ys.shape == (8, 96, 96) and (ys == 1).any()
+
+
+def test_training_checkpoints_and_resumes_on_the_named_device(tmp_path):
+    """ccdn-train on a two-scene bank: the steps run on --device, checkpoints and the log are written,
+    and --resume continues from the last step instead of starting over."""
+    from ccdn_training.bank import build_bank
+    from ccdn_training.train import main as train_main
+
+    build_bank(tmp_path / "bank.npz", 2, seed=0, workers=1, overrides={"p_no_board": 0.0})
+    args = ["--bank", str(tmp_path / "bank.npz"), "--val-bank", str(tmp_path / "bank.npz"), "--out", str(tmp_path / "run"),
+            "--device", "cpu", "--batch", "2", "--crop", "48", "--log-every", "2", "--val-every", "2",
+            "--checkpoint-every", "2", "--threads", "1"]
+    train_main(args + ["--steps", "2"])
+    first = torch.load(tmp_path / "run" / "last.pt", weights_only=False)
+    assert first["step"] == 2 and (tmp_path / "run" / "best.pt").exists()
+    train_main(args + ["--steps", "4", "--resume"])
+    steps = [json.loads(line)["step"] for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert steps == [2, 4]
+    assert torch.load(tmp_path / "run" / "last.pt", weights_only=False)["step"] == 4
 
 
 def test_int8_model_scores_like_its_fp32_source(tmp_path, examples):
