@@ -562,7 +562,11 @@ class _Grower:
         levels = quad_levels(self.sampler, points, u, v)[0]
         grey = _contrast(levels, sign) / self.contrast
         board = np.argwhere(self.idx >= 0)[:32]
-        board_levels = quad_levels(self.sampler, self.pos[board[:, 0], board[:, 1]], *self._axes(board))[0]
+        board_u, board_v = self._axes(board)
+        stepped = np.isfinite(board_u[:, 0]) & np.isfinite(board_v[:, 0])  # NaN: no filled neighbour pair
+        board = board[stepped]
+        board_levels = quad_levels(self.sampler, self.pos[board[:, 0], board[:, 1]], board_u[stepped],
+                                   board_v[stepped])[0]
         # the median over its corners, skipping those (NaN) without a quad pair on the image
         board_log = nanmedian_rows(_contrast(board_levels, self._signs(board), log=True)[None])[0]
         return (grey < SHADED_CONTRAST) & (_contrast(levels, sign, log=True) / board_log > grey)
