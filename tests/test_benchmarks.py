@@ -40,7 +40,9 @@ def test_latency_times_every_stage_at_both_sizes(tmp_path):
     assert set(rss) == {"640x480", "2000x1500"} and min(rss.values()) > 0
 
 
-@pytest.mark.parametrize("check", [[], ["--fast-check"]])
+# the fast check looks only for squares of 7 px or more on the halved frame: the first clean render's are
+# 6.7 px there (it finds nothing, as promised); the second's are 9.9 px
+@pytest.mark.parametrize("check", [[], ["--fast-check", "--skip", "1"]])
 def test_stress_counts_a_clean_render_whole_and_a_boardless_one_empty(tmp_path, check):
     report = _run("stress.py", tmp_path / "stress.json", "--per-subset", "1", "--subsets", "clean", "no-board",
                   "--detectors", "ccdn", *check)

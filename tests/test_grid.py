@@ -498,17 +498,18 @@ def test_the_shade_test_leaves_out_board_corners_without_lattice_steps():
     """The shade test (ccdn.grid._Grower._in_shade) takes the board's log contrast over up to 32 of
     its corners; one without a filled neighbour pair has no lattice steps (NaN), and casting its
     sampling boxes to pixels warned "invalid value encountered in cast", an exception where
-    warnings are errors: on the stress set's shadow render 7160393 (a board mostly in deep shadow).
-    Such corners are left out; the board found is the same."""
+    warnings are errors: on the stress set's shadow render 7160287 (a board a third in deep shadow;
+    7160393 with `fast` 1.0.0). Such corners are left out; the board is found whole (109 of its 120
+    corners, its shaded ones up to 1.7 px off)."""
     import warnings
 
     import ccdn
-    scene = stress_scene("shadow", 7_160_393)
+    scene = stress_scene("shadow", 7_160_287)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         found = ccdn.Detector(threads=2).detect(scene.image)
-    assert len(found.boards) == 1 and len(found) >= 13
-    assert max(nearest_distances(scene.corners, found.xy)) < 0.5
+    assert len(found.boards) == 1 and len(found) >= 105
+    assert max(nearest_distances(scene.corners, found.xy)) < 2.0
 
 
 def test_where_the_frame_cuts_a_board_its_outline_gives_no_corner():

@@ -8,7 +8,8 @@ their edge lines (ccdn.edges), which use many more pixels: on noisy frames (ccdn
 Frames go coarse-to-fine: the network first runs on the frame shrunk by the largest power of two
 that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x, 4x, then 2x).
 When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass finds boards whose
-squares are that big on the shrunk frame (DEEP_MIN_SQUARE on frames shrunk 4x or more), their
+squares are that big on the shrunk frame (DEEP_MIN_SQUARE on frames shrunk 4x or more; on the
+halved frame none of them thinner than THIN_SQUARE, as a fisheye board's rim can be), their
 corners are refined on the full-resolution image and the finer passes are skipped; otherwise the
 next finer pass runs, down to the full frame, which is scored only inside boxes around what the
 finest shrunk pass responded to (ccdn.regions: a frame with nothing there costs no full-resolution
@@ -40,7 +41,7 @@ import numpy as np
 from .edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
 from .grid import Board, find_boards, nearest_neighbours
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
-from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region
+from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region, thinnest
 from .models import default_coarse_model
 from .peaks import find_peaks, kmeans_outliers, suppress
 from .regions import look_boxes
@@ -61,6 +62,12 @@ COARSE_MIN_SQUARE = 7.0  # px on the shrunk frame: smaller squares go to the nex
 DEEP_MIN_SQUARE = 5.0  # px: the same for the boards a pass on a frame shrunk 4x or more found, whose squares are
 # >= 20 px at full size (2000x1500 real-dev frames found at 8x with 5-7 px squares there ran the 4x pass too, for
 # the same corners: 31-40 against 14-18 ms); 5 at 2x lost corners of steep boards (stress renders, 640x480)
+THIN_SQUARE = 5.0  # px on the shrunk frame: a board whose thinnest squares (ccdn.magnify.thinnest) are narrower goes
+# to the next finer pass too: `fast` cannot follow a fisheye board's rim or a steep board's far end there, and its
+# cleaner score maps no longer sent such frames on by their stray peaks (stress renders, fast 1.1.0: fisheye 58 -> 38
+# corners missed of 5909, the training-distribution renders 985 -> 902 of 4456); on the halved frame only: on frames
+# shrunk 4x or more it sent real-dev's GoPro fisheye boards (2000x1500) on to the finer passes for the same corners
+# (23 -> 70-79 ms)
 COARSE_MAX_SHIFT = 3.0  # shrunk px a corner may lie from its peak on a shrunk frame: `fast`'s peaks there can be
 # ~2 px off (its 4x4-pixel output cells; 2.0 lost such a corner: stress partial 0.22 -> 0.11 % missed, the rest as it was)
 FULL_FRAME_UNEVEN_SEEDS = 1  # on the full frame a seed square may have a corner whose quads an occluder's edge
@@ -185,17 +192,16 @@ class Detector:
                 any_squares: bool = False):
         """The pass on `small`, gray shrunk `scale` times (_halvings): (xy, values, boards, its score
         map), xy, values and boards None when the squares are too small to trust there (judged first
-        on the peaks, before any refinement, then on the corners found, before their edge-line
-        refinement, which a pass left to a finer one would waste: with any_squares, only on the
-        peaks) or no board is found."""
+        on the peaks, before any refinement, then on the corners found, their gaps and, on the halved
+        frame, their boards' thinnest squares, before their edge-line refinement, which a pass left to
+        a finer one would waste: with any_squares, only on the peaks) or no board is found."""
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
         if len(xy) < 9 or quantile(gaps, 0.75) < COARSE_MIN_SQUARE:
             return None, None, None, score
         xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
-        least = COARSE_MIN_SQUARE if scale <= 2 else DEEP_MIN_SQUARE
-        if len(xy) < 9 or (median(_gaps(xy)) / scale < least and not any_squares):
+        if len(xy) < 9 or (not any_squares and _too_small(xy, found, scale)):
             return None, None, None, score
         return xy, values, found, score
 
@@ -339,6 +345,15 @@ def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board,
     new_index[keep] = np.arange(len(keep))
     boards = tuple(dataclasses.replace(b, corner_index=new_index[b.corner_index]) for b in boards)
     return xy[keep], values[keep], boards
+
+
+def _too_small(xy: np.ndarray, boards: tuple[Board, ...], scale: int) -> bool:
+    """Whether a shrunk pass's corners xy (full-size px; on gray shrunk `scale` times) are too close
+    together to trust: their median gap under COARSE_MIN_SQUARE shrunk px (DEEP_MIN_SQUARE on frames
+    shrunk 4x or more) or, on the halved frame, a board's thinnest squares under THIN_SQUARE."""
+    if median(_gaps(xy)) / scale < (COARSE_MIN_SQUARE if scale <= 2 else DEEP_MIN_SQUARE):
+        return True
+    return scale <= 2 and min(map(thinnest, boards), default=np.inf) / scale < THIN_SQUARE
 
 
 def _coarse_scales(shape: tuple[int, ...]) -> list[int]:

@@ -27,6 +27,7 @@ import numpy as np
 from .checker import altitude
 from .edges import lattice_steps
 from .grid import Board, largest_first
+from .stats import median
 
 MAGNIFICATION = 2
 THIN_ALTITUDE = 5.0  # px: a board whose thinnest fifth of corners have squares narrower than this is magnified
@@ -56,7 +57,7 @@ _LINK_DISK = cv2.circle(np.zeros((2 * int(LOOSE_LINK / 2) + 1,) * 2, np.uint8), 
 def thin_region(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
     """(x0, y0, x1, y1): the part of a frame of `shape` (h, w) around the boards whose squares thin
     below THIN_ALTITUDE, to be magnified; None when no board is thin or the region is too large."""
-    thin = [board.xy for board in boards if _thinnest(board) < THIN_ALTITUDE]
+    thin = [board.xy for board in boards if thinnest(board) < THIN_ALTITUDE]
     if not thin:
         return None
     xy = np.concatenate(thin).astype(np.float64)
@@ -172,7 +173,7 @@ def merge(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...], more_xy
     return np.concatenate([xy, more_xy]), np.concatenate([values, more_values]), tuple(largest_first(kept))
 
 
-def _thinnest(board: Board) -> float:
+def thinnest(board: Board) -> float:
     """The median width across (checker.altitude) of the squares at the board's thinnest THIN_SHARE
     of corners, px (inf for a board too small to tell)."""
     steps = lattice_steps(board)
@@ -180,7 +181,7 @@ def _thinnest(board: Board) -> float:
     widths = np.sort(widths[np.isfinite(widths)])
     if len(widths) == 0:
         return float("inf")
-    return float(np.median(widths[: max(3, int(THIN_SHARE * len(widths)))]))
+    return float(median(widths[: max(3, int(THIN_SHARE * len(widths)))]))
 
 
 def _shares_corners(a: np.ndarray, b: np.ndarray) -> bool:
