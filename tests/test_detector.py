@@ -82,6 +82,18 @@ def test_paper_model_is_bundled():
     assert "paper" in ccdn.available_models()
 
 
+def test_every_bundled_model_has_a_card_titled_with_its_name_and_version():
+    """models/<name>.md states the version in the model's metadata: a card left at an older version
+    would document other weights (fast 1.1.0 was the first model to move past 1.0.0)."""
+    from ccdn.models import models_dir
+    from ccdn.session import ScoreSession
+
+    for name in ccdn.available_models():
+        info = ScoreSession(name, threads=1).info
+        title = (models_dir() / f"{name}.md").read_text(encoding="utf-8").splitlines()[0]
+        assert info.name == name and title.startswith(f"# Model card: `{name}` {info.version}")
+
+
 def test_default_models_are_int8_only_on_cpus_with_8bit_dot_products(monkeypatch):
     from ccdn import models
 
