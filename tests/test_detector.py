@@ -443,7 +443,9 @@ def test_a_gap_on_a_shadows_edge_is_filled_from_its_edge_lines(monkeypatch):
     board grows around them and leaves a gap (the stress set's shadow render 7160033: 73 of 81
     corners, measured). Where the board holds a prediction's neighbours on both sides and its quads
     look like the board's in shade, the edge-line fit is asked directly (ccdn.grid._on_shadows_edge):
-    77 now, every one a true corner (with `fast` 1.1.0 on the halved frame: 75 without that fit)."""
+    77 now, every one a true corner (with `fast` 1.1.0 on the halved frame: 75 without that fit; the
+    search on the levelled frame, which this board's shadow also calls for, is left out here)."""
+    monkeypatch.setattr("ccdn.grid.SHADE_SPREAD", np.inf)
     scene = stress_scene("shadow", 7_160_033)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 81 and len(found.boards) == 1
@@ -451,6 +453,46 @@ def test_a_gap_on_a_shadows_edge_is_filled_from_its_edge_lines(monkeypatch):
     assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 77  # true corners found
     monkeypatch.setattr("ccdn.grid._Grower._on_shadows_edge", lambda self, cells, *rest: np.zeros(len(cells), bool))
     assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 75
+
+
+def test_a_board_across_a_soft_shadows_edge_is_found_on_the_levelled_frame(monkeypatch):
+    """Where a shadow's edge is soft the light falls off across a corner as steeply as its squares
+    differ, and the corners along it fail the image tests on the grey and the log scale alike: in
+    the stress set's shadow render 7160393 the board stopped at that edge, 29 of its 44 corners.
+    A board lit that unevenly (ccdn.shade.light_spread above ccdn.grid.SHADE_SPREAD) is searched for
+    again on the frame divided by its light level (ccdn.shade.levelled): all 44, indexed as they
+    are, each within 1.2 px of its true place."""
+    scene = stress_scene("shadow", 7_160_393)
+    found = ccdn.Detector(threads=2).detect(scene.image)
+    assert len(scene.corners) == 44 and len(found.boards) == 1 and len(found) == 44
+    assert nearest_distances(scene.corners, found.xy).max() < 1.2
+    board = found.boards[0]
+    label = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2).argmin(1)
+    assert index_map(board, scene.grid[label]) is not None
+    monkeypatch.setattr("ccdn.grid.SHADE_SPREAD", np.inf)
+    assert len(ccdn.Detector(threads=2).detect(scene.image)) <= 30
+
+
+def test_corners_across_a_shadows_edge_are_fitted_again_on_the_levelled_frame(monkeypatch):
+    """Across a shadow's soft edge the light's slope pulls a corner's saddle fit and edge lines off
+    (the stress set's shadow render 7160287: its 28 corners whose two light quads differ by more
+    than ccdn.shade.SHADOW_EDGE, 0.72 px off the truth on average). On a board lit that unevenly
+    they are fitted again on the frame divided by its light level (ccdn.shade.levelled): 0.23 px."""
+    from ccdn.edges import lattice_steps
+    from ccdn.shade import across_shadows_edge, light_levels
+    scene = stress_scene("shadow", 7_160_287)
+
+    def across_the_edge() -> np.ndarray:
+        """The distance to the truth of the found board's corners across the shadow's edge."""
+        (board,) = ccdn.Detector(threads=2).detect(scene.image).boards
+        steps = lattice_steps(board)
+        edge = across_shadows_edge(light_levels(scene.image, board.xy.astype(np.float64), steps))
+        return nearest_distances(scene.corners, board.xy[edge])
+
+    levelled = across_the_edge()
+    assert len(levelled) >= 20 and levelled.mean() < 0.3
+    monkeypatch.setattr("ccdn.detector.SHADE_SPREAD", np.inf)
+    assert across_the_edge().mean() > 0.6
 
 
 def test_a_steep_views_narrow_squares_complete_without_taking_the_tips_between_them():
