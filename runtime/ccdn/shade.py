@@ -35,6 +35,7 @@ CLOSING_SQUARES = 1.5  # the closing's box, in squares: dark squares fill, a sha
 CLOSING_PX = 8  # the box's size on the shrunk frame the light level is made on
 MIN_LIGHT = 4.0  # grey levels: the light level is floored here (black stays black, not noise x 64)
 SHADOW_EDGE = 1.2  # a corner's two light quads differing by more than this x lie on both sides of a shadow's edge
+LIGHT_SQUARE_PX = 20  # px: light_levels samples squares longer than this on every n-th pixel, n = square // this
 SHADE_SHIFT = 2.0  # px: how far the saddle fit on the levelled frame may move a corner across a shadow's edge
 
 
@@ -49,14 +50,17 @@ def light_levels(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray, sampler: S
     levels = np.full((4, len(xy)), np.nan)
     if not ok.any():
         return levels
-    origin = np.zeros(2)
+    origin, every = np.zeros(2), 1
     if sampler is None:
         reach = float(np.max(np.abs(u[ok]) + np.abs(v[ok]))) + 1  # past the quads' centres, at (+-u +-v) / 2
         h, w = gray.shape
         x0, y0 = np.maximum(np.floor(xy[ok].min(0) - reach), 0).astype(int)
         x1, y1 = np.minimum(np.ceil(xy[ok].max(0) + reach), [w - 1, h - 1]).astype(int)
-        sampler, origin = Sampler(gray[y0 : y1 + 1, x0 : x1 + 1]), np.array([x0, y0])
-    levels[:, ok] = quad_means(sampler, xy[ok] - origin, u[ok], v[ok])
+        # every n-th pixel of big squares: their boxes still span 5+ of them, at a fraction of the integral's cost
+        every = max(1, int(median(np.linalg.norm(u[ok], axis=1)) // LIGHT_SQUARE_PX))
+        sampler = Sampler(np.ascontiguousarray(gray[y0 : y1 + 1 : every, x0 : x1 + 1 : every]))
+        origin = np.array([x0, y0])
+    levels[:, ok] = quad_means(sampler, (xy[ok] - origin) / every, u[ok] / every, v[ok] / every)
     return levels
 
 
