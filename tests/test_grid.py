@@ -494,6 +494,20 @@ def test_a_board_half_in_deep_shadow_is_one_board(seed, detected):
     assert len(found.boards) == 1 and len(found.boards[0]) >= detected
 
 
+def test_a_board_under_a_soft_shadow_is_searched_for_again_on_the_levelled_frame(monkeypatch):
+    """Given its true corners, the shadow render 7160406's board (a soft shadow across most of it)
+    grows to 32 of its 54 corners on the frame itself: the corners in the penumbra fail the image
+    tests on the grey and the log scale. That part is lit unevenly (ccdn.shade.light_spread 7.4 >
+    ccdn.grid.SHADE_SPREAD), so the search runs again on the levelled frame: 53, indexed as they are."""
+    scene = stress_scene("shadow", 7_160_406)
+    (board,) = find_boards(scene.image, scene.corners, np.ones(len(scene.corners)), complete=True)
+    assert len(board) == 53 and (board.corner_index < len(scene.corners)).all()
+    assert index_map(board, scene.grid[board.corner_index]) is not None
+    monkeypatch.setattr("ccdn.grid.SHADE_SPREAD", np.inf)
+    (board,) = find_boards(scene.image, scene.corners, np.ones(len(scene.corners)), complete=True)
+    assert len(board) <= 35
+
+
 def test_the_shade_test_leaves_out_board_corners_without_lattice_steps():
     """The shade test (ccdn.grid._Grower._in_shade) takes the board's log contrast over up to 32 of
     its corners; one without a filled neighbour pair has no lattice steps (NaN), and casting its
