@@ -320,7 +320,7 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
     on a noisy frame, else those on straight lines; on a board under a shadow (ccdn.shade.light_spread
     above ccdn.grid.SHADE_SPREAD) the corners a shadow's edge runs across first get the saddle fit
     again on the levelled frame (ccdn.shade.refined_across_shadows_edge), where its slope no longer
-    pulls them (60 shadow renders: ~850 such corners, 0.31 -> 0.15 px off the truth on average)."""
+    pulls them (100 shadow renders: ~850 such corners, 0.31 -> 0.15 px off the truth on average)."""
     xy = xy.copy()
     refined = []
     for board in boards:
