@@ -82,7 +82,7 @@ shadow's edge, whose light falls off across them as steeply as their squares dif
 grey evens that out), pass the image tests; the second search's boards are kept where they hold
 more corners (stress shadow renders: 190 -> 96 of 6427 corners missed over 100 renders, all found
 0.060 -> 0.065 px off the truth (mean), the 99 new ones 0.41 px, until ccdn.detector fitted the
-corners across a shadow's edge again on the levelled frame: 0.044 px; 1280 renders of the other
+corners across a shadow's edge again on the levelled frame: 0.044 px; 1440 renders of the other
 subsets and real-dev unchanged; also asked where no board was found, it found one more board of 40
 shadow renders and cost a boardless cluttered frame a quarter more time).
 
