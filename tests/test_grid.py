@@ -508,6 +508,26 @@ def test_a_board_under_a_soft_shadow_is_searched_for_again_on_the_levelled_frame
     assert len(board) <= 35
 
 
+@pytest.mark.parametrize("seed, strip", [(7_120_597, (2, 9, 18)), (7_120_704, (2, 5, 9))])
+def test_the_strip_of_a_board_another_hides_is_a_board(seed, strip, monkeypatch):
+    """Where one board hides most of another, what shows of the back one can be a strip two corners
+    wide (the stress set's two-boards renders 7120597 and 7120704): a board of 2 x 9 and of 2 x 5
+    positions, indexed as they are, next to the front board. With boards needing 3 x 3 positions
+    (ccdn.grid.MIN_EXTENT 3 before), they were lost."""
+    import ccdn
+    scene = stress_scene("two-boards", seed)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert len(boards) == 2
+    back = boards[1]
+    cols, rows, count = strip
+    assert (back.cols, back.rows, len(back)) == (cols, rows, count)
+    label = np.linalg.norm(back.xy[:, None] - scene.corners[None], axis=2).argmin(1)
+    assert len(set(scene.board_index[label])) == 1 and index_map(back, scene.grid[label]) is not None
+    assert nearest_distances(scene.corners, back.xy).max() < 0.1
+    monkeypatch.setattr("ccdn.grid.MIN_EXTENT", 3)
+    assert len(ccdn.Detector(threads=2).detect(scene.image).boards) == 1
+
+
 def test_the_shade_test_leaves_out_board_corners_without_lattice_steps():
     """The shade test (ccdn.grid._Grower._in_shade) takes the board's log contrast over up to 32 of
     its corners; one without a filled neighbour pair has no lattice steps (NaN), and casting its
