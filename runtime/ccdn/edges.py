@@ -97,6 +97,13 @@ def lattice_steps(board: Board) -> np.ndarray:
     return steps
 
 
+def median_step(steps: np.ndarray) -> float:
+    """The median length (px) of lattice steps (M, 4, 2) from lattice_steps, NaN ones left out: a
+    board's typical square."""
+    lengths = np.linalg.norm(steps, axis=2)
+    return float(median(lengths[np.isfinite(lengths)]))
+
+
 def on_straight_lines(board: Board, steps: np.ndarray) -> np.ndarray:
     """(M,) which of a board's corners (lattice steps (M, 4, 2) from lattice_steps) lie on straight
     lattice lines, where the edge lines beat the saddle fit even without noise: all corners of a
@@ -113,7 +120,7 @@ def on_straight_lines(board: Board, steps: np.ndarray) -> np.ndarray:
     lengths = np.linalg.norm(steps, axis=2)
     with np.errstate(invalid="ignore", divide="ignore"):  # NaN steps (no neighbour either way): not picked
         aspect = altitude(steps[:, 0], steps[:, 2]) / np.fmax(lengths[:, 0], lengths[:, 2])
-    flat = median(residual) < FLAT_BOARD * median(lengths[np.isfinite(lengths)])
+    flat = median(residual) < FLAT_BOARD * median_step(steps)
     return flat & (aspect >= MIN_ASPECT)
 
 

@@ -140,7 +140,7 @@ import numpy as np
 
 from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differences, quad_differences, quad_levels,
                       quad_means, quad_spread, x_like)
-from .edges import half_edge_contrast, lattice_steps, refine_on_edges
+from .edges import half_edge_contrast, lattice_steps, median_step, refine_on_edges
 from .refine import refine_saddle_points, window_for_spacing
 from .shade import levelled, light_levels, light_spread
 from .stats import median, nanmedian_rows
@@ -1067,8 +1067,7 @@ def _shaded_square(gray: np.ndarray, sampler: Sampler, boards: tuple[Board, ...]
     for board in boards:
         steps = lattice_steps(board)
         if light_spread(light_levels(gray, board.xy.astype(np.float64), steps, sampler)) > SHADE_SPREAD:
-            lengths = np.linalg.norm(steps, axis=2)
-            return float(median(lengths[np.isfinite(lengths)]))
+            return median_step(steps)
     return None
 
 

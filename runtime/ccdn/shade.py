@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from .checker import Sampler, quad_means
-from .edges import refine_on_edges
+from .edges import median_step, refine_on_edges
 from .refine import refine_saddle_points, window_for_spacing
 from .stats import median, quantile
 
@@ -94,7 +94,7 @@ def refined_across_shadows_edge(gray: np.ndarray, xy: np.ndarray, steps: np.ndar
     whether each moved."""
     if len(xy) == 0:
         return np.zeros((0, 2), np.float32), np.zeros(0, bool)
-    square = float(median(np.linalg.norm(steps[np.isfinite(steps).all(2)], axis=1)))
+    square = median_step(steps)
     h, w = gray.shape
     margin = 3 * square  # the light level's box and its smoothing reach 1.5 squares, the fits a square
     x0, y0 = np.maximum(np.floor(xy.min(0) - margin), 0).astype(int)
