@@ -44,10 +44,12 @@ def window_for_spacing(spacing: float) -> int:
 @dataclass(frozen=True)
 class _Quadric:
     """The least-squares quadric fit on a (2r+1)^2 patch: its radius r, offsets, design matrix,
-    weights, the fit's weighted pseudo-inverse (6, P) for patches wholly inside the image, and
-    `shifted`: that pseudo-inverse placed at each of the 4 corners of a (2r+2)^2 patch, (24, (2r+2)^2),
-    so that a fit at a sub-pixel centre is the bilinear blend of the 4 integer fits around it (the fit
-    is linear in the pixels, and so is bilinear sampling), read from one integer patch (read-only arrays)."""
+    weights, the fit's weighted pseudo-inverse for patches wholly inside the image, transposed (P, 6),
+    and `shifted`: that pseudo-inverse placed at each of the 4 corners of a (2r+2)^2 patch, transposed
+    ((2r+2)^2, 24), so that a fit at a sub-pixel centre is the bilinear blend of the 4 integer fits
+    around it (the fit is linear in the pixels, and so is bilinear sampling), read from one integer
+    patch. Read-only arrays; the transposes are contiguous, for patches (N, P) @ them (measured: a
+    transposed view multiplies 1.5x slower)."""
 
     radius: int
     ox: np.ndarray
@@ -71,8 +73,8 @@ def _quadric(radius: int) -> _Quadric:
     shifted = np.zeros((4, 6, side + 1, side + 1))
     for k, (dy, dx) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):  # the bilinear weights' order in _fit
         shifted[k, :, dy : dy + side, dx : dx + side] = pinv.reshape(6, side, side)
-    fit = _Quadric(radius, ox.astype(np.int64), oy.astype(np.int64), design, weight, pinv,
-                   shifted.reshape(24, (side + 1) ** 2))
+    fit = _Quadric(radius, ox.astype(np.int64), oy.astype(np.int64), design, weight, np.ascontiguousarray(pinv.T),
+                   np.ascontiguousarray(shifted.reshape(24, (side + 1) ** 2).T))
     for a in (fit.ox, fit.oy, fit.design, fit.weight, fit.pinv, fit.shifted):
         a.setflags(write=False)
     return fit
@@ -156,18 +158,19 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     ok = np.ones(n, bool)
     for _ in range(iterations):  # whole-pixel steps to the saddle's pixel
         offset, ok = _fit(smoothed, centre, quadric, min_saddle)
-        step = np.rint(np.clip(np.where(ok[:, None], offset, 0), -radius, radius)).astype(np.int64)
+        step = np.rint(np.minimum(np.maximum(np.where(ok[:, None], offset, 0), -radius), radius)).astype(np.int64)
         if not step.any():
             break
         centre = centre + step
     refined = centre + np.where(ok[:, None], offset, 0)  # where not converged: left where it was
     for _ in range(0 if rough else SUBPIXEL_ITERATIONS):  # re-fit centred on the estimate: least biased there
         again, ok_again = _fit(smoothed, refined, quadric, min_saddle)
-        move = ok & ok_again & np.all(np.abs(again) <= 0.5, 1)
+        move = ok & ok_again & (np.abs(again) <= 0.5).all(1)
         refined = np.where(move[:, None], refined + again, refined)
         offset = np.where(move[:, None], refined - centre, offset)
-    ok &= np.all(np.abs(offset) <= 0.75, 1) & (np.hypot(*(refined - start).T) <= max_shift)
-    ok &= (refined[:, 0] >= 0) & (refined[:, 0] <= w - 1) & (refined[:, 1] >= 0) & (refined[:, 1] <= h - 1)
+    ok &= (np.abs(offset) <= 0.75).all(1) & (np.hypot(*(refined - start).T) <= max_shift)
+    frame_end = np.array([w - 1, h - 1])  # the last pixel's (x, y)
+    ok &= ((refined >= 0) & (refined <= frame_end)).all(1)
     # a window cut by the frame's edge is lopsided, which biases the fit (measured: 0.7-1.4 px at
     # 1-3 px from the edge): such corners are fitted again with the largest window that fits (>= 2),
     # except by a rough pass, whose result only starts a fine pass that does this itself; a failed
@@ -176,10 +179,10 @@ def refine_saddle_points(gray: np.ndarray, xy: np.ndarray, radius: int = 3, sigm
     # (measured on renders: 2 of 181 at 1.5 px from the edge, none farther in; radius 4: 13, 5: 111)
     refined = np.where(ok[:, None], refined, start)
     if not rough:
-        edge = np.floor(np.minimum(np.minimum(refined[:, 0], w - 1 - refined[:, 0]),
-                                   np.minimum(refined[:, 1], h - 1 - refined[:, 1]))).astype(np.int64)
+        edge = np.floor(np.minimum(refined, frame_end - refined).min(1)).astype(np.int64)
+        window, refit = np.maximum(edge, 2), ok | (radius >= REFIT_FAILED_RADIUS)
         for small in range(2, radius):  # one call per window (_smoothed_around smooths only near the corners)
-            group = (np.clip(edge, 2, radius) == small) & (ok | (radius >= REFIT_FAILED_RADIUS))
+            group = (window == small) & refit
             if group.any():
                 refined[group], ok[group] = refine_saddle_points(gray, refined[group], small, 0.4 * small, iterations,
                                                                  max_shift, min_saddle)
@@ -200,15 +203,16 @@ def _fit(smoothed: _Smoothed, centre: np.ndarray, quadric: _Quadric, min_saddle:
     whole = centre.dtype.kind == "i"
     floor = centre if whole else np.floor(centre)
     span = 2 * r + 1 if whole else 2 * r + 2  # the integer patch read: one more row and column to blend
-    patch = _gather(smoothed, floor.astype(np.int64) - smoothed.shift - r, span)  # (N, span^2) float64
+    patch = _gather(smoothed, floor.astype(np.int64, copy=False) - smoothed.shift - r, span)  # (N, span^2) float64
     if whole:
-        coef = patch @ quadric.pinv.T  # (N, 6): a, b, c, d, e, g
+        coef = patch @ quadric.pinv  # (N, 6): a, b, c, d, e, g
     else:
         frac = centre - floor
-        along = np.stack([1 - frac, frac], 1)  # (N, 2 weights, x / y)
+        along = np.concatenate([1 - frac, frac], 1).reshape(-1, 2, 2)  # (N, 2 weights, x / y)
         blend = (along[:, :, None, 1] * along[:, None, :, 0]).reshape(-1, 1, 4)  # (y, x) as in _Quadric.shifted
-        coef = (blend @ (patch @ quadric.shifted.T).reshape(-1, 4, 6))[:, 0]
-    cut = np.nonzero(((centre < r) | (centre > np.array([w - 1 - r, h - 1 - r]))).any(1))[0]  # windows off the frame
+        coef = (blend @ (patch @ quadric.shifted).reshape(-1, 4, 6))[:, 0]
+    frame_end = np.array([w - 1, h - 1])  # the last pixel's (x, y)
+    cut = np.nonzero(((centre < r) | (centre > frame_end - r)).any(1))[0]  # windows off the frame
     if len(cut):
         if whole:
             values = patch[cut]
@@ -220,31 +224,24 @@ def _fit(smoothed: _Smoothed, centre: np.ndarray, quadric: _Quadric, min_saddle:
         # the pixels inside form a rectangle of offsets, first..last per axis: a quadric needs at least 3 of
         # its columns and 3 rows; each rectangle's fit is computed once (_FitsInside)
         first = np.ceil(np.maximum(-centre[cut], -r)).astype(np.int64)
-        last = np.floor(np.minimum(np.array([w - 1, h - 1]) - centre[cut], r)).astype(np.int64)
+        last = np.floor(np.minimum(frame_end - centre[cut], r)).astype(np.int64)
         solvable = (last - first >= 2).all(1)
         coef[cut] = np.nan
         if solvable.any():
             coef[cut[solvable]] = (_fits_inside(r)(first[solvable], last[solvable]) @ values[solvable][..., None])[..., 0]
     # b e - 2 c d, b d - 2 a e, 4 a c - b^2: the stationary point's numerators and the Hessian's determinant
-    terms = (coef[:, :, None] * coef[:, None, :]).reshape(-1, 36) @ _STATIONARY
+    terms = (coef[:, _PAIRS[0]] * coef[:, _PAIRS[1]]) @ _STATIONARY
     det = terms[:, 2]
     saddle = det < -min_saddle * min_saddle  # False where the fit failed (NaN)
     return terms[:, :2] / np.where(saddle, det, -1.0)[:, None], saddle  # offsets of non-saddles mean nothing
 
 
-def _stationary_terms() -> np.ndarray:
-    """(36, 3): the products of the coefficients (a, b, c, d, e, g) pairwise, flattened, -> the terms above."""
-    a, b, c, d, e = range(5)
-    terms = np.zeros((6, 6, 3))
-    for k, products in enumerate(([(b, e, 1), (c, d, -2)], [(b, d, 1), (a, e, -2)], [(a, c, 4), (b, b, -1)])):
-        for i, j, factor in products:
-            terms[i, j, k] += factor / 2  # the outer product holds each product twice, (i, j) and (j, i)
-            terms[j, i, k] += factor / 2
-    terms.setflags(write=False)
-    return terms.reshape(36, 3)
-
-
-_STATIONARY = _stationary_terms()
+# the terms above from the coefficients (a, b, c, d, e, g): the pairs multiplied (b e, c d, b d, a e, a c,
+# b b), and the factors that sum their products to each term (6, 3)
+_PAIRS = np.array([[1, 2, 1, 0, 0, 1], [4, 3, 3, 4, 2, 1]])
+_STATIONARY = np.array([[1, 0, 0], [-2, 0, 0], [0, 1, 0], [0, -2, 0], [0, 0, 4], [0, 0, -1]], np.float64)
+_PAIRS.setflags(write=False)
+_STATIONARY.setflags(write=False)
 
 
 def _gather(smoothed: _Smoothed, top_left: np.ndarray, span: int) -> np.ndarray:
@@ -259,7 +256,7 @@ def _gather(smoothed: _Smoothed, top_left: np.ndarray, span: int) -> np.ndarray:
         rows = np.minimum(np.maximum(top_left[:, 1:2] + steps, lo[:, 1:2]), hi[:, 1:2])
         cols = np.minimum(np.maximum(top_left[:, 0:1] + steps, lo[:, 0:1]), hi[:, 0:1])
         index = (rows[:, :, None] * stride + cols[:, None, :]).reshape(len(top_left), -1)
-    return np.ravel(smoothed.image).take(index).astype(np.float64)
+    return smoothed.image.ravel().take(index).astype(np.float64)
 
 
 @lru_cache(maxsize=64)
@@ -297,8 +294,8 @@ def _smoothed_around(gray: np.ndarray, xy: np.ndarray, sigma: float, reach: int)
     if 2 * n * side * side >= (x1 - x0) * (y1 - y0):  # a patch pixel, gathered, costs about two of a slice (measured)
         part = gray[y0:y1, x0:x1].astype(np.float32)
         part = _blur_inside(part, sigma) if sigma > 0 else part
-        return _Smoothed(part, np.broadcast_to(np.array([x0, y0]), (n, 2)), np.zeros((n, 2), np.int64),
-                         np.broadcast_to(np.array([x1 - x0 - 1, y1 - y0 - 1]), (n, 2)), (h, w))
+        return _Smoothed(part, np.full((n, 2), (x0, y0)), np.zeros((n, 2), np.int64),
+                         np.full((n, 2), (x1 - x0 - 1, y1 - y0 - 1)), (h, w))
     corner = np.floor(xy).astype(np.int64) - reach - margin  # each patch's top-left (x, y) in the frame
     offsets = np.arange(side)
     cols, rows = corner[:, 0:1] + offsets, corner[:, 1:2] + offsets  # (N, side) each
@@ -338,12 +335,32 @@ def _blur_inside(part: np.ndarray, sigma: float) -> np.ndarray:
     or repeating the edge, as usual borders do, would pull a corner near the frame's edge towards
     its mirror image (measured: 1-1.7 px off at 2 px from the edge). The normaliser is separable
     and differs from 1 only within the kernel's reach of an edge, so only those bands are divided."""
-    blurred = cv2.GaussianBlur(part, (kernel_size(sigma),) * 2, sigma, borderType=cv2.BORDER_CONSTANT)
-    rows, cols = (_mass_inside(np.ones((1, n), bool), sigma)[0] for n in part.shape)
-    top, left = np.nonzero(np.abs(rows - 1) > 1e-6)[0], np.nonzero(np.abs(cols - 1) > 1e-6)[0]
-    blurred[top] /= rows[top, None]
-    blurred[:, left] /= cols[None, left]
+    size = kernel_size(sigma)
+    blurred = cv2.GaussianBlur(part, (size, size), sigma, borderType=cv2.BORDER_CONSTANT)
+    for lines in (blurred, blurred.T):  # rows, then columns
+        n = len(lines)
+        if n >= size:  # the kernel reaches past one end at a time: the ends' normaliser, the same for every n
+            end = _end_mass(sigma)
+            lines[: len(end)] /= end[:, None]
+            lines[n - len(end) :] /= end[::-1, None]
+        else:
+            mass = _mass_inside(np.ones((1, n), bool), sigma)[0]
+            band = np.abs(mass - 1) > 1e-6
+            lines[band] /= mass[band, None]
     return blurred
+
+
+@lru_cache(maxsize=16)
+def _end_mass(sigma: float) -> np.ndarray:
+    """(k,) float32: _blur_inside's normaliser at the first k pixels of a line at least a kernel long,
+    those where it differs from 1 by more than 1e-6; the last k pixels hold it reversed, those between
+    exactly 1. Cached: it depends on sigma only (measured: the same bits as _mass_inside on the whole
+    line, for lines from a kernel to 3000 pixels long, sigma 0.8 to 4)."""
+    size = kernel_size(sigma)
+    mass = _mass_inside(np.ones((1, size), bool), sigma)[0, : size // 2]
+    end = mass[np.abs(mass - 1) > 1e-6]
+    end.setflags(write=False)
+    return end
 
 
 def _mass_inside(inside: np.ndarray, sigma: float) -> np.ndarray:
