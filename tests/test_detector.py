@@ -426,7 +426,8 @@ def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
     measured, the rest along and beyond the shadow's edge). Completion then takes the crossing of
     the corner's lattice lines fitted to its squares' edges on the log scale, where each of its
     four half-edges shows at least half the strongest one's contrast (ccdn.grid.EVEN_EDGES; on a
-    board's outline one runs into the margin): at least 21 true corners now, in one board."""
+    board's outline one runs into the margin): at least 21 true corners now, in one board (the
+    saddle fits alone: 20, 14 before prune kept corners whose other neighbours the shadow hides)."""
     scene = stress_scene("shadow", 7_160_182)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 24 and len(found.boards) == 1 and len(found.boards[0]) >= 22
@@ -434,7 +435,7 @@ def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
     assert (off < 1.5).sum() >= 21 and np.median(off) < 0.1
     assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 21
     monkeypatch.setattr("ccdn.grid.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone
-    assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 15
+    assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 20
 
 
 def test_a_gap_on_a_shadows_edge_is_filled_from_its_edge_lines(monkeypatch):
@@ -461,7 +462,8 @@ def test_a_board_across_a_soft_shadows_edge_is_found_on_the_levelled_frame(monke
     the stress set's shadow render 7160393 the board stopped at that edge, 29 of its 44 corners.
     A board lit that unevenly (ccdn.shade.light_spread above ccdn.grid.SHADE_SPREAD) is searched for
     again on the frame divided by its light level (ccdn.shade.levelled): all 44, indexed as they
-    are, each within 1.2 px of its true place."""
+    are, each within 1.2 px of its true place (without: 35 since prune keeps the corners whose other
+    neighbours the shadow hides, ccdn.grid._Grower._hidden_around)."""
     scene = stress_scene("shadow", 7_160_393)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 44 and len(found.boards) == 1 and len(found) == 44
@@ -470,7 +472,7 @@ def test_a_board_across_a_soft_shadows_edge_is_found_on_the_levelled_frame(monke
     label = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2).argmin(1)
     assert index_map(board, scene.grid[label]) is not None
     monkeypatch.setattr("ccdn.grid.SHADE_SPREAD", np.inf)
-    assert len(ccdn.Detector(threads=2).detect(scene.image)) <= 30
+    assert len(ccdn.Detector(threads=2).detect(scene.image)) <= 35
 
 
 def test_corners_across_a_shadows_edge_are_fitted_again_on_the_levelled_frame(monkeypatch):
