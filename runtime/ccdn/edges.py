@@ -32,7 +32,7 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import cv2
 import numpy as np
@@ -63,6 +63,17 @@ FLAT_BOARD = 0.01  # of the median lattice step: a board whose corners a homogra
 MIN_ASPECT = 0.4  # a corner's narrowest square width over its longer step: thinner squares keep the saddle fit
 
 
+def _frozen(array: np.ndarray) -> np.ndarray:
+    """array made read-only: a module constant that every call shares."""
+    array.flags.writeable = False
+    return array
+
+
+_ACROSS = _frozen(np.arange(-int(HALF_WIDTH / SAMPLE_STEP), int(HALF_WIDTH / SAMPLE_STEP) + 1) * SAMPLE_STEP)  # (K,)
+_ABS_ACROSS = _frozen(np.abs(_ACROSS))  # px: a profile's samples' offsets across its edge, and their distances
+_ALONG = _frozen(np.linspace(*REACH, PROFILES))  # (P,) the profiles' places along a half-edge, x its step
+
+
 def image_noise(gray: np.ndarray) -> float:
     """Robust estimate of the image noise's standard deviation in grey levels: the median absolute
     response of a kernel that cancels smooth image content (Immerkaer's), scaled to a Gaussian's
@@ -87,20 +98,17 @@ def lattice_steps(board: Board) -> np.ndarray:
     missing neighbour is mirrored from the opposite one, NaN where both are missing."""
     grid = board.grid.astype(np.int64)
     xy = board.xy.astype(np.float64)
-    canvas = np.full((grid[:, 0].max() + 3, grid[:, 1].max() + 3, 2), np.nan)
+    canvas = np.full((*(grid.max(0) + 3), 2), np.nan)
     r, c = grid[:, 0] + 1, grid[:, 1] + 1
     canvas[r, c] = xy
-    steps = np.stack([canvas[r, c + 1], canvas[r, c - 1], canvas[r + 1, c], canvas[r - 1, c]], 1) - xy[:, None]
-    for a, b in ((0, 1), (1, 0), (2, 3), (3, 2)):
-        missing = np.isnan(steps[:, a, 0])
-        steps[missing, a] = -steps[missing, b]
-    return steps
+    steps = canvas[r[:, None] + (0, 0, 1, -1), c[:, None] + (1, -1, 0, 0)] - xy[:, None]  # +col, -col, +row, -row
+    return np.where(np.isnan(steps[..., :1]), -steps[:, [1, 0, 3, 2]], steps)  # missing: the opposite one, reversed
 
 
 def median_step(steps: np.ndarray) -> float:
     """The median length (px) of lattice steps (M, 4, 2) from lattice_steps, NaN ones left out: a
     board's typical square."""
-    lengths = np.linalg.norm(steps, axis=2)
+    lengths = _norm(steps)
     return float(median(lengths[np.isfinite(lengths)]))
 
 
@@ -116,8 +124,8 @@ def on_straight_lines(board: Board, steps: np.ndarray) -> np.ndarray:
     homography, _ = cv2.findHomography(grid, xy, 0)
     if homography is None:
         return np.zeros(len(board), bool)
-    residual = np.linalg.norm(cv2.perspectiveTransform(grid[None], homography)[0] - xy, axis=1)
-    lengths = np.linalg.norm(steps, axis=2)
+    residual = _norm(cv2.perspectiveTransform(grid[None], homography)[0] - xy)
+    lengths = _norm(steps)
     with np.errstate(invalid="ignore", divide="ignore"):  # NaN steps (no neighbour either way): not picked
         aspect = altitude(steps[:, 0], steps[:, 2]) / np.fmax(lengths[:, 0], lengths[:, 2])
     flat = median(residual) < FLAT_BOARD * median_step(steps)
@@ -130,20 +138,15 @@ def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tupl
     (corners whose lines cannot be fitted keep their position)."""
     if len(xy) == 0:
         return np.zeros((0, 2), np.float32), np.zeros(0, bool)
-    image, origin, frame, start, lines = _prepared(gray, xy, steps)
-    current = start.copy()
-    m = len(xy)
-    moved = np.zeros(m, bool)
+    image, origin, extent, start, half_edges = _prepared(gray, xy, steps)
+    inverse = _crossing_inverse(half_edges.normal)
+    current = start
     for _ in range(ITERATIONS):
-        offsets, normals, _ = _edge_lines(image, frame, np.concatenate([current, current]), *lines)
-        normals = normals.reshape(2, m, 2).transpose(1, 0, 2)  # (M, 2 lines, 2)
-        offsets = offsets.reshape(2, m).T  # (M, 2)
-        solvable = np.isfinite(offsets).all(1) & np.isfinite(normals).all((1, 2))
-        solvable[solvable] &= np.abs(np.linalg.det(normals[solvable])) > 0.2  # lines far from parallel
-        shift = np.zeros_like(current)
-        shift[solvable] = np.linalg.solve(normals[solvable], offsets[solvable][..., None])[..., 0]
-        moved = solvable & (np.linalg.norm(current + shift - start, axis=1) <= MAX_MOVE)
-        current = np.where(moved[:, None], current + shift, start)
+        offsets = _edge_lines(image, extent, current, half_edges)  # (M, 2 lines)
+        shifted = current + (inverse * offsets[:, None]).sum(2)  # NaN where no crossing
+        move = shifted - start
+        moved = np.sqrt((move * move).sum(1)) <= MAX_MOVE
+        current = np.where(moved[:, None], shifted, start)
     return (current + origin).astype(np.float32), moved
 
 
@@ -154,106 +157,170 @@ def half_edge_contrast(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> n
     three (the fourth runs into the margin)."""
     if len(xy) == 0:
         return np.zeros((0, 4))
-    image, _, frame, start, lines = _prepared(gray, xy, steps)
-    _, _, typical = _edge_lines(image, frame, np.concatenate([start, start]), *lines)
-    forward, backward = typical.reshape(2, 2, -1)  # (+col, +row) then (-col, -row) half-edges, each (M,)
-    return np.stack([forward[0], backward[0], forward[1], backward[1]], 1)
+    image, _, extent, start, half_edges = _prepared(gray, xy, steps)
+    _, contrast = _profiles(image, extent, start, half_edges)
+    return nanmedian_rows(contrast).reshape(-1, 4)
+
+
+class _HalfEdges(NamedTuple):
+    """How the profiles across M corners' four half-edges (+col, -col, +row, -row) are sampled and
+    read: all but the corners' positions, so built once per call and reused by every fit as the
+    corners move. P profiles per half-edge, K samples per profile; (4M, ...) rows run over the
+    corners, then their half-edges; (2M, ...) rows over the corners, then their lattice lines
+    (along the columns: the +col / -col half-edges; along the rows)."""
+
+    normal: np.ndarray  # (M, 2 lines, 2) each lattice line's unit normal (x, y)
+    centres: np.ndarray  # (2 x/y, M, 4, P) each profile's centre relative to its corner
+    samples: np.ndarray  # (2 x/y, M, 4, 1, K) each sample's offset from its profile's centre
+    inside: np.ndarray  # (4M, K, 1) float32: 1 on the samples within the profile's half-width
+    low: np.ndarray  # (4M, K, 1) float32: 1 on its outer samples on the negative side (a square's level)
+    high: np.ndarray  # (4M, K, 1) float32: likewise on the positive side
+    count: np.ndarray  # (4M, 1) how many samples `inside` picks
+    low_count: np.ndarray  # (4M, 1) how many `low` picks, at least 1
+    high_count: np.ndarray  # (4M, 1) how many `high` picks, at least 1
+    half_span: np.ndarray  # (4M, 1) px: half the profile's extent, count SAMPLE_STEP / 2
+    wide: np.ndarray  # (4M, 1) whether the profile is at least MIN_HALF_WIDTH
+    centres_in_line: np.ndarray  # (2 along/across, 2M, 2 half-edges, P) the profiles' centres in their line's frame
+    across_in_line: np.ndarray  # (2 along/across, 2M, 2 half-edges, 1) the unit vector across a profile, likewise
 
 
 def _prepared(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray):
-    """What _edge_lines needs for corners xy (M, 2) with lattice steps (M, 4, 2): the smoothed crop
-    (_smoothed_around), its origin and frame, xy in the crop's pixels, and the forward and backward
-    steps and widths of both lattice lines of every corner, sampled in one pass (the line along the
-    columns, +col / -col steps, is as wide as the row steps are long, and back)."""
+    """What the fits need for corners xy (M, 2) with lattice steps (M, 4, 2): the smoothed crop
+    (_smoothed_around), its origin, gray's extent in it, xy in the crop's pixels and the
+    half-edges' sampling (_half_edges)."""
     start = xy.astype(np.float64)
-    lengths = np.linalg.norm(steps, axis=2)
-    image, origin, frame = _smoothed_around(gray, start, lengths)
-    forward, backward = np.concatenate([steps[:, 0], steps[:, 2]]), np.concatenate([steps[:, 1], steps[:, 3]])
-    across = np.concatenate([lengths[:, 2:].mean(1), lengths[:, :2].mean(1)])
-    return image, origin, frame, start - origin, (forward, backward, across)
+    lengths = _norm(steps)
+    image, origin, extent = _smoothed_around(gray, start, lengths)
+    return image, origin, extent, start - origin, _half_edges(steps, lengths)
+
+
+def _norm(vectors: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The lengths of vectors whose (x, y) run along axis: np.linalg.norm(vectors, axis=axis) to the
+    bit, without its argument handling (a sizeable part of its time on the few vectors here)."""
+    return np.sqrt((vectors * vectors).sum(axis))
+
+
+def _half_edges(steps: np.ndarray, lengths: np.ndarray) -> _HalfEdges:
+    """The sampling of the half-edges of corners with lattice steps (M, 4, 2) and their lengths
+    (M, 4). Each lattice line runs through the corner from its backward to its forward neighbour,
+    and is as wide as the perpendicular steps are long (the line along the columns spans the row
+    steps, and back)."""
+    m = len(steps)
+    lines = steps.reshape(m, 2, 2, 2).transpose(3, 0, 1, 2)  # (x/y, corner, line, forward/backward)
+    direction = lines[..., 0] - lines[..., 1]  # (2, M, 2 lines)
+    (dx, dy), (ux, uy) = direction / _norm(direction, axis=0), lines / lengths.reshape(m, 2, 2)
+    line_frame = np.array([[dx, dy], [-dy, dx]])  # (along, normal; x/y; M, 2 lines)
+    half_edge_frame = np.array([[ux, uy], [-uy, ux]])  # (along, across; x/y; M, 2 lines, 2 half-edges)
+    # each half-edge's along and across unit vectors in its line's frame: (along, across; along, normal; M, 2, 2, 1)
+    in_line = (half_edge_frame[:, None] * line_frame[..., None]).sum(2)[..., None]
+    t = lengths.reshape(m, 2, 2, 1) * _ALONG  # (M, 2, 2, P) px from the corner
+    width = lengths.reshape(m, 2, 2).sum(2)[:, ::-1] / 2  # (M, 2 lines): the perpendicular steps' mean
+    half = np.repeat(np.minimum(0.3 * width, HALF_WIDTH), 2)[:, None]  # (4M, 1) px, the profile's half-width
+    inside = _ABS_ACROSS <= half  # (4M, K)
+    outer = inside & (_ABS_ACROSS >= 0.6 * half)  # its two ends: the squares' levels
+    masks = np.array([inside, outer & (_ACROSS < 0), outer & (_ACROSS > 0)])  # inside, low, high: (3, 4M, K)
+    count, *side_counts = masks.sum(2)[..., None]
+    low_count, high_count = np.maximum(side_counts, 1)
+    inside_mask, low_mask, high_mask = masks[..., None].astype(np.float32)
+    return _HalfEdges(
+        normal=line_frame[1].transpose(1, 2, 0),
+        centres=(t * half_edge_frame[0][..., None]).reshape(2, m, 4, -1),
+        samples=(_ACROSS * half_edge_frame[1][..., None, None]).reshape(2, m, 4, 1, -1),
+        inside=inside_mask, low=low_mask, high=high_mask, count=count, low_count=low_count, high_count=high_count,
+        half_span=count * SAMPLE_STEP / 2, wide=half >= MIN_HALF_WIDTH,
+        centres_in_line=(t * in_line[0]).reshape(2, 2 * m, 2, -1), across_in_line=in_line[1].reshape(2, 2 * m, 2, 1))
 
 
 def _smoothed_around(gray: np.ndarray, xy: np.ndarray, lengths: np.ndarray):
     """The Gaussian-smoothed (SMOOTHING) crop of gray that every profile of corners xy (M, 2) with
     step lengths (M, 4) can reach, its origin (x, y) in gray, and gray's extent in the crop's
-    pixels (x_min, y_min, x_max, y_max): smoothing a board's surroundings, not the whole frame
+    pixels ((x_min, y_min), (x_max, y_max)): smoothing a board's surroundings, not the whole frame
     (at 2000x1500 the frame's smoothing cost more than the fits). The margin covers half the
     longest step, the profile's half-width, MAX_MOVE, the interpolation and the kernel's reach,
     so the crop's values there equal the whole frame's."""
     h, w = gray.shape
     size = kernel_size(SMOOTHING)
-    reach = REACH[1] * np.nanmax(lengths, initial=0.0) + HALF_WIDTH + MAX_MOVE + 1 + size // 2
+    reach = REACH[1] * np.fmax.reduce(lengths, None, initial=0.0) + HALF_WIDTH + MAX_MOVE + 1 + size // 2  # NaN: none
     x0, y0 = (max(0, int(v)) for v in np.floor(xy.min(0) - reach))
     x1, y1 = (int(v) for v in np.minimum(np.ceil(xy.max(0) + reach) + 1, (w, h)))
     x1, y1 = max(x1, x0 + 1), max(y1, y0 + 1)
     image = cv2.GaussianBlur(gray[y0:y1, x0:x1].astype(np.float32), (size, size), SMOOTHING)
-    return image, np.array([x0, y0], np.float64), (-x0, -y0, w - 1 - x0, h - 1 - y0)
+    return image, np.array([x0, y0], np.float64), np.array([[-x0, -y0], [w - 1 - x0, h - 1 - y0]], np.float64)
 
 
-def _edge_lines(image: np.ndarray, frame: tuple[int, int, int, int], xy: np.ndarray, forward: np.ndarray,
-                backward: np.ndarray, across: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The lattice lines through points xy along steps `forward` / `backward` (L, 2) (to the two
-    neighbours on each; `across`: the step length perpendicular to it), sampled on `image` whose
-    frame (x_min, y_min, x_max, y_max) bounds the samples that count: each line's offset (L,)
-    from xy along its unit normal (L, 2), NaN where too few edge profiles are usable, and each
-    half-edge's median absolute contrast (2L,: the forward half-edges, then the backward ones)."""
-    n = len(xy)
-    direction = forward - backward
-    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    normal = np.stack([-direction[:, 1], direction[:, 0]], 1)
-    half = np.minimum(0.3 * across, HALF_WIDTH)  # (L,)
-    k = np.arange(-int(HALF_WIDTH / SAMPLE_STEP), int(HALF_WIDTH / SAMPLE_STEP) + 1) * SAMPLE_STEP
-    # the two half-edges of every line as rows of one (2L, ...) sampling: forward ones, then backward
-    # ones; x and y apart, so that every array's last axis is the profile's samples (K)
-    step = np.concatenate([forward, backward])
-    base, half2 = np.concatenate([xy, xy]), np.concatenate([half, half])
-    length = np.linalg.norm(step, axis=1)
-    unit = step / length[:, None]
-    across_x, across_y = -unit[:, 1], unit[:, 0]  # the unit vector across the half-edge
-    t = np.linspace(*REACH, PROFILES)[None] * length[:, None]  # (2L, P)
-    px = (base[:, :1] + t * unit[:, :1])[..., None] + k * across_x[:, None, None]  # (2L, P, K)
-    py = (base[:, 1:] + t * unit[:, 1:])[..., None] + k * across_y[:, None, None]
-    values = cv2.remap(image, px.reshape(2 * n, -1).astype(np.float32), py.reshape(2 * n, -1).astype(np.float32),
-                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(px.shape)
-    inside = np.abs(k)[None] <= half2[:, None]  # (2L, K) samples within the profile
-    outer = inside & (np.abs(k)[None] >= 0.6 * half2[:, None])  # its two ends: the squares' levels
-    # sums over a profile's chosen samples as one batched product with the (2L, K) masks
-    low_side, high_side = outer & (k < 0), outer & (k > 0)
-    low = (values @ low_side[..., None].astype(np.float32))[..., 0] / np.maximum(low_side.sum(1), 1)[:, None]
-    high = (values @ high_side[..., None].astype(np.float32))[..., 0] / np.maximum(high_side.sum(1), 1)[:, None]
-    contrast = high - low  # (2L, P)
-    flat = np.where(contrast == 0, np.nan, contrast)  # no edge: NaN (unusable below), not +-inf
-    count = inside.sum(1)[:, None]
-    rise = ((values @ inside[..., None].astype(np.float32))[..., 0] - count * low) / flat  # the normalised step's sum
-    edge = count * SAMPLE_STEP / 2 - rise * SAMPLE_STEP  # area method: offset along the across unit vector
-    x_min, y_min, x_max, y_max = frame
-    ends_x, ends_y = px[..., [0, -1]], py[..., [0, -1]]  # a profile is on the image where both its ends are
-    on_image = ((ends_x >= x_min) & (ends_x <= x_max) & (ends_y >= y_min) & (ends_y <= y_max)).all(2)
-    typical = nanmedian_rows(np.where(on_image, np.abs(contrast), np.nan))[:, None]  # per half-edge
-    usable = on_image & (np.abs(contrast) > 0.5 * typical) & (half2[:, None] >= MIN_HALF_WIDTH)
-    # the edge point t unit + edge across, relative to the corner, in the line's frame (along it, across it)
-    direction2, normal2 = np.concatenate([direction, direction]), np.concatenate([normal, normal])
-    along = (t * (unit * direction2).sum(1)[:, None]
-             + edge * (across_x * direction2[:, 0] + across_y * direction2[:, 1])[:, None])
-    offset = t * (unit * normal2).sum(1)[:, None] + edge * (across_x * normal2[:, 0] + across_y * normal2[:, 1])[:, None]
-    t, s, ok = (np.concatenate([part[:n], part[n:]], 1) for part in (along, offset, usable))  # (L, 2P)
+def _profiles(image: np.ndarray, extent: np.ndarray, xy: np.ndarray, half_edges: _HalfEdges):
+    """The profiles across half_edges at corners xy (M, 2), sampled on image whose extent ((x_min,
+    y_min), (x_max, y_max)) bounds the samples that count: each one's edge offset along the unit
+    vector across it by the area method (the integral of the normalised step), and its absolute
+    contrast, NaN where the profile is not on the image (an end outside extent); each (4M, P)."""
+    m = len(xy)
+    centres = xy.T[:, :, None, None] + half_edges.centres  # (2 x/y, M, 4, P)
+    # the samples' x and y maps for remap: float64 sums rounded to float32, with no float64 array of them
+    maps = np.empty((2, 4 * m, PROFILES * len(_ACROSS)), np.float32)
+    np.add(centres[..., None], half_edges.samples, out=maps.reshape(centres.shape + (-1,)), casting="unsafe")
+    values = cv2.remap(image, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    values = values.reshape(4 * m, PROFILES, -1)  # (4M, P, K)
+    # sums over a profile's chosen samples as one batched product with the (4M, K, 1) masks
+    low = (values @ half_edges.low)[..., 0] / half_edges.low_count
+    high = (values @ half_edges.high)[..., 0] / half_edges.high_count
+    contrast = high - low  # (4M, P)
+    flat = np.where(contrast == 0, np.nan, contrast)  # no edge: NaN (unusable), not +-inf
+    rise = ((values @ half_edges.inside)[..., 0] - half_edges.count * low) / flat  # the normalised step's sum
+    edge = half_edges.half_span - rise * SAMPLE_STEP  # area method: offset along the across unit vector
+    first, last = centres + half_edges.samples[..., 0], centres + half_edges.samples[..., -1]  # the profile's ends
+    lowest, highest = extent[..., None, None, None]
+    on_image = (np.minimum(first, last) >= lowest) & (np.maximum(first, last) <= highest)
+    on_image = (on_image[0] & on_image[1]).reshape(edge.shape)
+    return edge, np.where(on_image, np.abs(contrast), np.nan)
+
+
+def _edge_lines(image: np.ndarray, extent: np.ndarray, xy: np.ndarray, half_edges: _HalfEdges) -> np.ndarray:
+    """(M, 2) the offsets from corners xy (M, 2) of their lattice lines (along the columns, along
+    the rows) along the lines' unit normals (half_edges.normal): robust lines through the edge
+    points of the usable profiles (_profiles) of both their half-edges, fitted in the line's own
+    frame; NaN where too few profiles are usable."""
+    edge, contrast = _profiles(image, extent, xy, half_edges)
+    typical = nanmedian_rows(contrast)[:, None]  # per half-edge
+    usable = (contrast > 0.5 * typical) & half_edges.wide  # NaN contrast (off the image): False
+    # the edge points (the profile's centre + edge x the unit vector across it) relative to the
+    # corner, in their line's frame: (along it, across it), each (2M lines, 2P profiles)
+    edge = edge.reshape(2 * len(xy), 2, -1)
+    along, offset = (half_edges.centres_in_line + edge * half_edges.across_in_line).reshape(2, 2 * len(xy), -1)
+    return _robust_intercepts(along, offset, usable.reshape(along.shape)).reshape(-1, 2)
+
+
+def _robust_intercepts(t: np.ndarray, s: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Per row, the intercept a of s = a + b t fitted over the `ok` entries, then refitted twice, each
+    time without those beyond 3 robust sigmas of the last fit (occluders, clutter); NaN where fewer
+    than 5 remain."""
     s = np.where(ok, s, 0.0)
-    for _ in range(2):  # fit s = a + b t, drop profiles beyond 3 robust sigmas (occluders, clutter), refit
-        a, b = _weighted_line(t, s, ok)
-        residual = np.abs(s - a[:, None] - b[:, None] * t)
-        spread = 1.4826 * nanmedian_rows(np.where(ok, residual, np.nan))[:, None]
-        ok &= residual <= 3 * np.maximum(spread, 0.05)
-    a, _ = _weighted_line(t, s, ok)
-    a[ok.sum(1) < 5] = np.nan
-    return a, normal, typical[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):  # rows with fewer than two entries: NaN
+        for _ in range(2):
+            a, b, _ = _weighted_line(t, s, ok)
+            residual = np.abs(s - a[:, None] - b[:, None] * t)
+            spread = 1.4826 * nanmedian_rows(np.where(ok, residual, np.nan))[:, None]
+            ok = ok & (residual <= 3 * np.maximum(spread, 0.05))
+        a, _, n = _weighted_line(t, s, ok)
+    a[n < 5] = np.nan
+    return a
 
 
-def _weighted_line(t: np.ndarray, s: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares s = a + b t per row over the `ok` entries; NaN where fewer than two."""
+def _weighted_line(t: np.ndarray, s: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares s = a + b t per row over the `ok` entries, and how many there are: a, b and n
+    (each (rows,)), NaN where fewer than two (numpy's warnings for that: the caller's to silence)."""
     n = ok.sum(1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mt = np.where(ok, t, 0).sum(1) / n
-        ms = np.where(ok, s, 0).sum(1) / n
-        dt = np.where(ok, t - mt[:, None], 0)
-        b = (dt * (s - ms[:, None])).sum(1) / (dt * dt).sum(1)
-    return ms - b * mt, b
+    mt = np.where(ok, t, 0).sum(1) / n
+    ms = np.where(ok, s, 0).sum(1) / n
+    dt = np.where(ok, t - mt[:, None], 0)
+    b = (dt * (s - ms[:, None])).sum(1) / (dt * dt).sum(1)
+    return ms - b * mt, b, n
+
+
+def _crossing_inverse(normal: np.ndarray) -> np.ndarray:
+    """(M, 2, 2) the inverses of each corner's two line normals (M, 2 lines, 2) as rows: the shift
+    that moves a corner by its lines' offsets o (M, 2) is inverse @ o. NaN where the lines are
+    near parallel (|det| <= 0.2) or a normal is NaN (no lines to cross)."""
+    (a, b), (c, d) = normal.transpose(1, 2, 0)
+    det = a * d - b * c
+    det = np.where(np.abs(det) > 0.2, det, np.nan)  # lines far from parallel
+    return np.array([[d, -b], [-c, a]]).transpose(2, 0, 1) / det[:, None, None]
