@@ -24,7 +24,8 @@ class Sampler:
         self.height, self.width = gray.shape
 
     def contains(self, points: np.ndarray) -> np.ndarray:
-        x, y = np.rint(points[:, 0]), np.rint(points[:, 1])
+        """(...) whether points (..., 2) round to a pixel of the image."""
+        x, y = np.rint(points[..., 0]), np.rint(points[..., 1])
         return (x >= 0) & (y >= 0) & (x < self.width) & (y < self.height)
 
     def mean(self, points: np.ndarray, radius: np.ndarray) -> np.ndarray:
@@ -63,33 +64,33 @@ def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, r
     p = np.atleast_2d(p)
     if u.shape != p.shape or v.shape != p.shape:  # broadcast_to's cost shows on these small calls
         u, v = np.broadcast_to(u, p.shape), np.broadcast_to(v, p.shape)
-    radius = _box_radius(u, v)
-    # (S, K, 2): reach x (0, u + v, -(u + v), u - v, v - u), then axes x (u, -u, v, -v), as one product
-    # over the basis (u + v, u - v, u, v) (its coefficients are 0 and +-1, so each offset is exact)
-    coefficients = _sample_offsets(reach, axes)
-    n = len(coefficients)
-    basis = np.stack([u + v, u - v, u, v]).reshape(4, -1)
-    offsets = (coefficients @ basis).reshape(n, len(p), 2)
-    step = _quad_steps(u, v)
-    centre = p[None] + step / 2
-    off = ~sampler.contains(centre.reshape(-1, 2)).reshape(4, -1)
+    coefficients = _quad_coefficients(reach, axes)
+    steps = _combinations(u, v, coefficients)
+    half, quarter, offsets = steps[:4], steps[4:8], steps[8:]  # (4, K, 2), (4, K, 2), (S, K, 2)
+    centre = p + half
+    off = ~sampler.contains(centre)
     if off.any():
-        centre[off] = (p[None] + step / 4)[off]
-    samples = sampler.mean(centre[:, None] + offsets[None], radius)  # (4 quads, S samples, K)
-    # fmin / fmax skip NaN samples (off the image) without nanmax's warnings; all-NaN stays NaN
-    return np.sort(samples, axis=1)[:, n // 2], np.fmin.reduce(samples, 1), np.fmax.reduce(samples, 1)
+        centre[off] = (p + quarter)[off]
+    samples = sampler.mean(centre[:, None] + offsets, _box_radius(u, v))  # (4 quads, S samples, K)
+    ordered = np.sort(samples, axis=1)  # NaN samples (off the image) last, so all-NaN stays NaN
+    # fmax skips NaN samples without nanmax's warnings
+    return ordered[:, len(offsets) // 2], ordered[:, 0], np.fmax.reduce(samples, 1)
 
 
 def quad_means(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(4, K): the mean grey level of one box at each quad's centre around corners p (K, 2), lattice
     steps u, v (K, 2), in quad_levels' order: a cheaper look than its 5 samples per quad (NaN off
     the image)."""
-    return sampler.mean(p[None] + _quad_steps(u, v) / 2, _box_radius(u, v))
+    return sampler.mean(p + _combinations(u, v, _HALF_STEPS), _box_radius(u, v))
 
 
-def _quad_steps(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(4, K, 2): the diagonal steps +u+v, +u-v, -u+v, -u-v from a corner across its quads."""
-    return _QUAD_SIGNS[:, :, 0] * u[None] + _QUAD_SIGNS[:, :, 1] * v[None]
+def _combinations(u: np.ndarray, v: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """(R, K, 2): the steps given by coefficients (R, 4) over the basis (u + v, u - v, u, v) of lattice
+    steps u, v (K, 2), all in one product. Zero coefficients add exact zeros, so a row with one
+    nonzero coefficient c gives c (u + v), c (u - v), c u or c v rounded once, and a row (0, 0, +-b,
+    +-b) with b a power of 2 gives b (+-u +- v) rounded once: each step as if computed alone."""
+    basis = np.concatenate((u + v, u - v, u, v)).reshape(4, -1)
+    return (coefficients @ basis).reshape(len(coefficients), len(u), 2)
 
 
 def _box_radius(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -101,7 +102,7 @@ def pair_differences(levels: np.ndarray) -> np.ndarray:
     """(K, 4): own-parity minus other-parity quad over the 4 edge-adjacent pairs (QUAD_PAIRS) of
     quad levels (4, K) (quad_levels' medians, or any function of them that keeps their order),
     positive when the corner's own-parity quads are light."""
-    return (levels[QUAD_PAIRS[:, 0]] - levels[QUAD_PAIRS[:, 1]]).T
+    return (levels.take(_OWN_QUADS, 0) - levels.take(_OTHER_QUADS, 0)).T  # take: a fifth of indexing's cost
 
 
 def quad_spread(low: np.ndarray, high: np.ndarray) -> np.ndarray:
@@ -119,21 +120,25 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     return pair_differences(median), quad_spread(low, high)
 
 
-# the quads +u+v, +u-v, -u+v, -u-v (0..3): their signs of u and v, (4 quads, 1, 2, 1), and the edge-adjacent
-# pairs quad_differences returns, in its order: (own-parity quad, other-parity quad)
-_QUAD_SIGNS = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)[:, None, :, None]
+# the quads +u+v, +u-v, -u+v, -u-v (0..3): the steps (+-u +- v) / 2 from a corner to their centres over
+# _combinations' basis (u + v, u - v, u, v), and the edge-adjacent pairs quad_differences returns, in its
+# order: (own-parity quad, other-parity quad)
+_HALF_STEPS = np.array([[0, 0, 1, 1], [0, 0, 1, -1], [0, 0, -1, 1], [0, 0, -1, -1]]) / 2
 QUAD_PAIRS = np.array([[0, 1], [0, 2], [3, 1], [3, 2]])
-_QUAD_SIGNS.setflags(write=False)
+_HALF_STEPS.setflags(write=False)
 QUAD_PAIRS.setflags(write=False)
+_OWN_QUADS, _OTHER_QUADS = QUAD_PAIRS.T
 
 
 @lru_cache(maxsize=8)
-def _sample_offsets(reach: float, axes: float) -> np.ndarray:
-    """(S, 4): quad_differences' sample offsets over the basis (u + v, u - v, u, v) (read-only)."""
+def _quad_coefficients(reach: float, axes: float) -> np.ndarray:
+    """(8 + S, 4): quad_levels' steps over _combinations' basis (u + v, u - v, u, v) (read-only): from
+    a corner halfway and a quarter of the way across each quad (its centre, and the one used when
+    that is off the image), then from a quad's centre to its S samples."""
     rows = [(0, 0, 0, 0), (reach, 0, 0, 0), (-reach, 0, 0, 0), (0, reach, 0, 0), (0, -reach, 0, 0)]
     if axes > 0:
         rows += [(0, 0, axes, 0), (0, 0, -axes, 0), (0, 0, 0, axes), (0, 0, 0, -axes)]
-    coefficients = np.array(rows, np.float64)
+    coefficients = np.concatenate([_HALF_STEPS, _HALF_STEPS / 2, np.array(rows, np.float64)])
     coefficients.setflags(write=False)
     return coefficients
 

@@ -18,8 +18,8 @@ def median(a: np.ndarray, axis: int | None = None) -> np.ndarray | np.floating:
         a, axis = np.ravel(a), 0
     ordered = np.sort(a, axis=axis)
     n = ordered.shape[axis]
-    middle = (np.take(ordered, (n - 1) // 2, axis) + np.take(ordered, n // 2, axis)) / 2
-    return np.where(np.isnan(np.take(ordered, n - 1, axis)), np.nan, middle)[()]
+    middle = (ordered.take((n - 1) // 2, axis) + ordered.take(n // 2, axis)) / 2
+    return np.where(np.isnan(ordered.take(n - 1, axis)), np.nan, middle)[()]
 
 
 def quantile(a: np.ndarray, q: float) -> float:
@@ -41,7 +41,7 @@ def nanmedian_rows(a: np.ndarray) -> np.ndarray:
     finite = np.isfinite(ordered)
     n = (finite if a.ndim == 2 else finite[..., 0]).sum(1)
     rows = np.arange(len(a))
-    lo, hi = np.maximum((n - 1) // 2, 0), np.minimum(n // 2, a.shape[1] - 1)
-    median = (ordered[rows, lo] + ordered[rows, hi]) / 2
+    # the middle finite values (where there are none, index -1 and 0: any, overwritten below)
+    median = (ordered[rows, (n - 1) // 2] + ordered[rows, n // 2]) / 2
     median[n == 0] = np.nan
     return median
