@@ -314,12 +314,15 @@ class _Grower:
         self.pos[rc[:, 0], rc[:, 1]] = self.points(idx)
         given = idx[idx < len(self.free)]
         self.free[given] = False
-        near = np.zeros(self.idx.shape, np.uint8)  # failed positions near a change may pass now
-        near[rc[:, 0], rc[:, 1]] = 1
-        self.stale &= cv2.dilate(near, np.ones((2 * _REACH + 1,) * 2, np.uint8)) == 0
-        # a completion fit that failed next to a new corner is tried again: its prediction now has
-        # more support (a hole first predicted from one side fits once its other sides are filled)
-        self.tried &= cv2.dilate(near, np.ones((3, 3), np.uint8)) == 0
+        stale, tried = self.stale.any(), self.tried.any()  # none before the local rounds: nothing to clear
+        if stale or tried:
+            near = np.zeros(self.idx.shape, np.uint8)  # failed positions near a change may pass now
+            near[rc[:, 0], rc[:, 1]] = 1
+            if stale:
+                self.stale &= cv2.dilate(near, np.ones((2 * _REACH + 1,) * 2, np.uint8)) == 0
+            if tried:  # a completion fit that failed next to a new corner is tried again: its prediction now
+                # has more support (a hole first predicted from one side fits once its other sides are filled)
+                self.tried &= cv2.dilate(near, np.ones((3, 3), np.uint8)) == 0
         self._ensure_margin(rc)
 
     def _gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -441,7 +444,7 @@ class _Grower:
         free = np.nonzero(self.free)[0]
         if len(free) == 0 or len(cells) == 0:
             return none, none
-        d = np.linalg.norm(preds[:, None] - self.xy[free][None], axis=2)
+        d = _distances(preds, self.xy[free])
         nearest = d.argmin(1)
         dist = d[np.arange(len(cells)), nearest]
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
@@ -484,7 +487,7 @@ class _Grower:
             if homography is None or abs(np.linalg.det(homography)) < 1e-12:
                 return
             fitted, u, v = _project_with_steps(homography, grid)
-            if (np.linalg.norm(fitted - points, axis=1) > FLAT_RESIDUAL * _shorter(u, v)).any():
+            if (_lengths(fitted - points) > FLAT_RESIDUAL * _shorter(u, v)).any():
                 return
             inverse = cv2.perspectiveTransform(self.xy[free][None], np.linalg.inv(homography))[0]
             cells = np.rint(inverse[:, ::-1] + self.origin)  # (row, col) on the canvas
@@ -553,7 +556,7 @@ class _Grower:
                                                                 narrow=narrow[shaded], **fit)
         if (on_edges := (shaded & ~good) | edge_only).any():  # no saddle on either scale: its edge lines' crossing
             points[on_edges], good[on_edges] = self._on_edge_lines(preds[on_edges], u[on_edges], v[on_edges])
-        shift = np.linalg.norm(points - preds, axis=1)
+        shift = _lengths(points - preds)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
         good &= _inside(points, self.gray.shape)
         if (again := good & saddle).any():  # edge_only's are judged by their half-edges instead (_on_edge_lines)
@@ -562,7 +565,7 @@ class _Grower:
         good[good] &= self._straight(cells[good], points[good])
         taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
         if len(taken):
-            good &= np.linalg.norm(points[:, None] - taken[None], axis=2).min(1) >= tol
+            good &= _distances(points, taken).min(1) >= tol
         keep = []
         for k in np.nonzero(good)[0][np.argsort(shift[good], kind="stable")]:  # two cells, one point: once
             if all(np.linalg.norm(points[k] - points[j]) >= tol[k] for j in keep):
@@ -724,7 +727,7 @@ class _Grower:
             suspects = np.argwhere(bad)
             if len(suspects) == 0:
                 return
-            off = np.linalg.norm(self.pos[suspects[:, 0], suspects[:, 1]] - self._predict(suspects), axis=1)
+            off = _lengths(self.pos[suspects[:, 0], suspects[:, 1]] - self._predict(suspects))
             off = np.nan_to_num(off / _shorter(*self._axes(suspects)), nan=np.inf)  # unpredictable: first
             worst = suspects[off.argmax()]
             self.idx[worst[0], worst[1]] = -1
@@ -817,6 +820,22 @@ def _project_with_steps(homography: np.ndarray, grid: np.ndarray) -> tuple[np.nd
     return points, right - points, down - points
 
 
+def _lengths(d: np.ndarray) -> np.ndarray:
+    """(K,) lengths of vectors d (K, 2): np.linalg.norm(d, axis=1) to the last bit, without its slow sum."""
+    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+
+
+def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(K, M) distances between points a (K, 2) and b (M, 2): np.linalg.norm(a[:, None] - b[None], axis=2)
+    to the last bit, an order of magnitude faster (its sum over an axis of length 2 is slow)."""
+    dx = a[:, :1] - b[:, 0]
+    dy = a[:, 1:] - b[:, 1]
+    dx *= dx
+    dy *= dy
+    dx += dy
+    return np.sqrt(dx, out=dx)
+
+
 def _first_of_each_cell(cells: np.ndarray, width: int) -> np.ndarray:
     """Indices of the first occurrence of each distinct canvas cell in cells (K, 2) (row, col < width),
     in (row, col) order: np.unique(axis=0, return_index=True) on one integer key per cell, without
@@ -856,8 +875,13 @@ def _shorter(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 def _square_enough(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(...) whether the cells spanned by steps u, v (..., 2) are no flatter than a seed square may
     be: the sine of the steps' angle above MIN_SINE (seeds and every growth step)."""
-    cross = np.abs(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
-    return cross > MIN_SINE * np.hypot(u[..., 0], u[..., 1]) * np.hypot(v[..., 0], v[..., 1])
+    return _unsheared(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0], np.hypot(u[..., 0], u[..., 1]),
+                      np.hypot(v[..., 0], v[..., 1]))
+
+
+def _unsheared(cross: np.ndarray, lu: np.ndarray, lv: np.ndarray) -> np.ndarray:
+    """_square_enough from the steps' cross product and lengths (np.hypot's), where these are at hand."""
+    return np.abs(cross) > MIN_SINE * lu * lv
 
 
 def _bends(a: np.ndarray, b: np.ndarray, cos_limit: float) -> np.ndarray:
@@ -907,30 +931,32 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     valid = np.take_along_axis(valid, order, 1)
     nb, nb_valid = candidates[:, :SEED_NEIGHBOURS], valid[:, :SEED_NEIGHBOURS]
     i, j = _pairs(nb.shape[1])
-    p = xy[seeds][:, None]  # (S, 1, 2)
-    u, v = xy[nb[:, i]] - p, xy[nb[:, j]] - p  # (S, P, 2)
-    lu, lv = np.linalg.norm(u, axis=2), np.linalg.norm(v, axis=2)
-    cross = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
-    ok = (nb_valid[:, i] & nb_valid[:, j] & _square_enough(u, v) & (lu < 5 * lv) & (lv < 5 * lu)
-          & (np.abs(cross) >= MIN_SQUARE_PX * np.maximum(lu, lv)))
+    around = xy[candidates] - xy[seeds][:, None]  # (S, K, 2) candidates relative to their seed
+    # pairs (u, v) of steps to the nearest candidates (S, P), from each step's coordinates and length
+    step_x, step_y = around[:, :SEED_NEIGHBOURS, 0], around[:, :SEED_NEIGHBOURS, 1]
+    length = np.sqrt(step_x * step_x + step_y * step_y)  # np.linalg.norm's value, without its slow sum
+    lu, lv = length[:, i], length[:, j]
+    cross = step_x[:, i] * step_y[:, j] - step_y[:, i] * step_x[:, j]
+    hypot = np.hypot(step_x, step_y)  # _square_enough's lengths (hypot's last bit, not the norm's)
+    ok = (nb_valid[:, i] & nb_valid[:, j] & _unsheared(cross, hypot[:, i], hypot[:, j]) & (lu < 5 * lv)
+          & (lv < 5 * lu) & (np.abs(cross) >= MIN_SQUARE_PX * np.maximum(lu, lv)))
     si, pi = np.nonzero(ok)  # the fourth corner is sought for the plausible pairs only
     flip = cross[si, pi] < 0
-    a = np.where(flip, nb[si, j[pi]], nb[si, i[pi]])
-    b = np.where(flip, nb[si, i[pi]], nb[si, j[pi]])
-    uu, vv = xy[a] - xy[seeds[si]], xy[b] - xy[seeds[si]]
-    around = xy[candidates] - p  # (S, K, 2) candidates relative to their seed, invalid ones far away
-    around[~valid] = np.inf
+    ia, ib = np.where(flip, j[pi], i[pi]), np.where(flip, i[pi], j[pi])  # u x v > 0
+    a, b = nb[si, ia], nb[si, ib]
+    uu, vv = around[si, ia], around[si, ib]
+    size = np.maximum(length[si, ia], length[si, ib])  # the longer step
+    around[~valid] = np.inf  # invalid candidates far away
     target = uu + vv
     d2 = ((around[si, :, 0] - target[:, :1]) ** 2) + ((around[si, :, 1] - target[:, 1:]) ** 2)  # (G, K)
     nearest = d2.argmin(1)
     fourth = candidates[si, nearest]
     tol = TOLERANCE * np.minimum(lu[si, pi], lv[si, pi])
     keep = ((d2[np.arange(len(si)), nearest] < tol**2) & (fourth != seeds[si]) & (fourth != a) & (fourth != b))
-    si, a, b, fourth, uu, vv = si[keep], a[keep], b[keep], fourth[keep], uu[keep], vv[keep]
+    si, a, b, fourth, uu, vv, size = si[keep], a[keep], b[keep], fourth[keep], uu[keep], vv[keep], size[keep]
     if len(si) == 0:
         return found, corners, sign, contrast
     square = np.stack([seeds[si], a, b, fourth], 1)  # (G, 4)
-    size = np.maximum(np.linalg.norm(uu, axis=1), np.linalg.norm(vv, axis=1))
     by_size = np.lexsort((size, si))  # each seed's squares, shortest first
     rank = np.empty(len(si), np.int64)
     rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
@@ -1003,7 +1029,7 @@ def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int
         neighbour = canvas[rows + dr, cols + dc]
         has = neighbour >= 0
         steps = xy[neighbour[has]] - xy[has]
-        return (steps / np.linalg.norm(steps, axis=1, keepdims=True)).mean(0)
+        return (steps / _lengths(steps)[:, None]).mean(0)
 
     col_dir, row_dir = mean_step(0, 1).tolist(), mean_step(1, 0).tolist()
     (r_min, c_min), (r_max, c_max) = grid.min(0).tolist(), grid.max(0).tolist()
@@ -1046,7 +1072,7 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         d2 *= -2
         d2 += norms[None]
         d2 += norms[block, None]
-        d2[np.arange(len(d2)), np.arange(start, start + len(d2))] = np.inf
+        d2.ravel()[start :: len(xy) + 1] = np.inf  # each row's own point: its diagonal
         part = d2.argmin(1)[:, None] if k == 1 else np.argpartition(d2, k - 1, axis=1)[:, :k]
         d2 = np.take_along_axis(d2, part, 1)
         order = np.argsort(d2, axis=1, kind="stable")
@@ -1116,17 +1142,17 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     # strict seed squares first; squares with uneven corners only among the seeds left when they are done
     # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less)
     for uneven in range(uneven_seeds + 1):
-        batch: dict[int, list] = {}  # seed -> its square, checked in growing batches of the free seeds
+        batch: dict[int, int] = {}  # seed -> its row in squares, checked in growing batches of the free seeds
         size = 1 if uneven == 0 else SEED_CHUNK
-        for k, s in enumerate(seeds):
+        for k, s in enumerate(seeds.tolist()):
             if not free[s]:
                 continue
             if s not in batch:
                 ahead = seeds[k:][free[seeds[k:]]][:size]
                 size = min(4 * size, SEED_CHUNK)  # the first seed usually finds the board
                 squares = _seed_squares(xy, sampler, ahead, neighbours[ahead], free, uneven)
-                batch = {int(a): [part[i] for part in squares] for i, a in enumerate(ahead)}
-            square = batch[s]
+                batch = dict(zip(ahead.tolist(), range(len(ahead))))
+            square = [part[batch[s]] for part in squares]
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in _seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
                                                             uneven)]
