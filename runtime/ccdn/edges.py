@@ -39,7 +39,7 @@ import numpy as np
 
 from .checker import altitude
 from .refine import kernel_size
-from .stats import median, nanmedian_rows
+from .stats import median, nanmedian_rows, vector_lengths
 
 if TYPE_CHECKING:  # ccdn.grid fits corners on their edges too: imported at run time, Board would be circular
     from .grid import Board
@@ -108,7 +108,7 @@ def lattice_steps(board: Board) -> np.ndarray:
 def median_step(steps: np.ndarray) -> float:
     """The median length (px) of lattice steps (M, 4, 2) from lattice_steps, NaN ones left out: a
     board's typical square."""
-    lengths = _norm(steps)
+    lengths = vector_lengths(steps)
     return float(median(lengths[np.isfinite(lengths)]))
 
 
@@ -124,8 +124,8 @@ def on_straight_lines(board: Board, steps: np.ndarray) -> np.ndarray:
     homography, _ = cv2.findHomography(grid, xy, 0)
     if homography is None:
         return np.zeros(len(board), bool)
-    residual = _norm(cv2.perspectiveTransform(grid[None], homography)[0] - xy)
-    lengths = _norm(steps)
+    residual = vector_lengths(cv2.perspectiveTransform(grid[None], homography)[0] - xy)
+    lengths = vector_lengths(steps)
     with np.errstate(invalid="ignore", divide="ignore"):  # NaN steps (no neighbour either way): not picked
         aspect = altitude(steps[:, 0], steps[:, 2]) / np.fmax(lengths[:, 0], lengths[:, 2])
     flat = median(residual) < FLAT_BOARD * median_step(steps)
@@ -189,15 +189,9 @@ def _prepared(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray):
     (_smoothed_around), its origin, gray's extent in it, xy in the crop's pixels and the
     half-edges' sampling (_half_edges)."""
     start = xy.astype(np.float64)
-    lengths = _norm(steps)
+    lengths = vector_lengths(steps)
     image, origin, extent = _smoothed_around(gray, start, lengths)
     return image, origin, extent, start - origin, _half_edges(steps, lengths)
-
-
-def _norm(vectors: np.ndarray, axis: int = -1) -> np.ndarray:
-    """The lengths of vectors whose (x, y) run along axis: np.linalg.norm(vectors, axis=axis) to the
-    bit, without its argument handling (a sizeable part of its time on the few vectors here)."""
-    return np.sqrt((vectors * vectors).sum(axis))
 
 
 def _half_edges(steps: np.ndarray, lengths: np.ndarray) -> _HalfEdges:
@@ -208,7 +202,7 @@ def _half_edges(steps: np.ndarray, lengths: np.ndarray) -> _HalfEdges:
     m = len(steps)
     lines = steps.reshape(m, 2, 2, 2).transpose(3, 0, 1, 2)  # (x/y, corner, line, forward/backward)
     direction = lines[..., 0] - lines[..., 1]  # (2, M, 2 lines)
-    (dx, dy), (ux, uy) = direction / _norm(direction, axis=0), lines / lengths.reshape(m, 2, 2)
+    (dx, dy), (ux, uy) = direction / vector_lengths(direction, axis=0), lines / lengths.reshape(m, 2, 2)
     line_frame = np.array([[dx, dy], [-dy, dx]])  # (along, normal; x/y; M, 2 lines)
     half_edge_frame = np.array([[ux, uy], [-uy, ux]])  # (along, across; x/y; M, 2 lines, 2 half-edges)
     # each half-edge's along and across unit vectors in its line's frame: (along, across; along, normal; M, 2, 2, 1)

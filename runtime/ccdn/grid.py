@@ -148,7 +148,7 @@ from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differen
 from .edges import half_edge_contrast, lattice_steps, median_step, refine_on_edges
 from .refine import refine_saddle_points, window_for_spacing
 from .shade import levelled, light_levels, light_spread
-from .stats import median, nanmedian_rows
+from .stats import median, nanmedian_rows, vector_lengths
 
 MIN_CORNERS = 8
 MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board behind another (module docstring)
@@ -487,7 +487,7 @@ class _Grower:
             if homography is None or abs(np.linalg.det(homography)) < 1e-12:
                 return
             fitted, u, v = _project_with_steps(homography, grid)
-            if (_lengths(fitted - points) > FLAT_RESIDUAL * _shorter(u, v)).any():
+            if (vector_lengths(fitted - points) > FLAT_RESIDUAL * _shorter(u, v)).any():
                 return
             inverse = cv2.perspectiveTransform(self.xy[free][None], np.linalg.inv(homography))[0]
             cells = np.rint(inverse[:, ::-1] + self.origin)  # (row, col) on the canvas
@@ -556,7 +556,7 @@ class _Grower:
                                                                 narrow=narrow[shaded], **fit)
         if (on_edges := (shaded & ~good) | edge_only).any():  # no saddle on either scale: its edge lines' crossing
             points[on_edges], good[on_edges] = self._on_edge_lines(preds[on_edges], u[on_edges], v[on_edges])
-        shift = _lengths(points - preds)
+        shift = vector_lengths(points - preds)
         good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
         good &= _inside(points, self.gray.shape)
         if (again := good & saddle).any():  # edge_only's are judged by their half-edges instead (_on_edge_lines)
@@ -727,7 +727,7 @@ class _Grower:
             suspects = np.argwhere(bad)
             if len(suspects) == 0:
                 return
-            off = _lengths(self.pos[suspects[:, 0], suspects[:, 1]] - self._predict(suspects))
+            off = vector_lengths(self.pos[suspects[:, 0], suspects[:, 1]] - self._predict(suspects))
             off = np.nan_to_num(off / _shorter(*self._axes(suspects)), nan=np.inf)  # unpredictable: first
             worst = suspects[off.argmax()]
             self.idx[worst[0], worst[1]] = -1
@@ -818,11 +818,6 @@ def _project_with_steps(homography: np.ndarray, grid: np.ndarray) -> tuple[np.nd
     moved = cv2.perspectiveTransform(np.concatenate([grid, grid + [1, 0], grid + [0, 1]])[None], homography)[0]
     points, right, down = moved.reshape(3, -1, 2)
     return points, right - points, down - points
-
-
-def _lengths(d: np.ndarray) -> np.ndarray:
-    """(K,) lengths of vectors d (K, 2): np.linalg.norm(d, axis=1) to the last bit, without its slow sum."""
-    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
 
 
 def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -934,7 +929,7 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     around = xy[candidates] - xy[seeds][:, None]  # (S, K, 2) candidates relative to their seed
     # pairs (u, v) of steps to the nearest candidates (S, P), from each step's coordinates and length
     step_x, step_y = around[:, :SEED_NEIGHBOURS, 0], around[:, :SEED_NEIGHBOURS, 1]
-    length = np.sqrt(step_x * step_x + step_y * step_y)  # np.linalg.norm's value, without its slow sum
+    length = vector_lengths(around[:, :SEED_NEIGHBOURS])
     lu, lv = length[:, i], length[:, j]
     cross = step_x[:, i] * step_y[:, j] - step_y[:, i] * step_x[:, j]
     hypot = np.hypot(step_x, step_y)  # _square_enough's lengths (hypot's last bit, not the norm's)
@@ -1029,7 +1024,7 @@ def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int
         neighbour = canvas[rows + dr, cols + dc]
         has = neighbour >= 0
         steps = xy[neighbour[has]] - xy[has]
-        return (steps / _lengths(steps)[:, None]).mean(0)
+        return (steps / vector_lengths(steps)[:, None]).mean(0)
 
     col_dir, row_dir = mean_step(0, 1).tolist(), mean_step(1, 0).tolist()
     (r_min, c_min), (r_max, c_max) = grid.min(0).tolist(), grid.max(0).tolist()

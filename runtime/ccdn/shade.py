@@ -29,7 +29,7 @@ import numpy as np
 from .checker import Sampler, quad_means
 from .edges import median_step, refine_on_edges
 from .refine import refine_saddle_points, window_for_spacing
-from .stats import median, quantile
+from .stats import median, quantile, vector_lengths
 
 CLOSING_SQUARES = 1.5  # the closing's box, in squares: dark squares fill, a shadow stays
 CLOSING_PX = 8  # the box's size on the shrunk frame the light level is made on
@@ -57,7 +57,7 @@ def light_levels(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray, sampler: S
         x0, y0 = np.maximum(np.floor(xy[ok].min(0) - reach), 0).astype(int)
         x1, y1 = np.minimum(np.ceil(xy[ok].max(0) + reach), [w - 1, h - 1]).astype(int)
         # every n-th pixel of big squares: their boxes still span 5+ of them, at a fraction of the integral's cost
-        every = max(1, int(median(np.linalg.norm(u[ok], axis=1)) // LIGHT_SQUARE_PX))
+        every = max(1, int(median(vector_lengths(u[ok])) // LIGHT_SQUARE_PX))
         sampler = Sampler(np.ascontiguousarray(gray[y0 : y1 + 1 : every, x0 : x1 + 1 : every]))
         origin = np.array([x0, y0])
     levels[:, ok] = quad_means(sampler, (xy[ok] - origin) / every, u[ok] / every, v[ok] / every)

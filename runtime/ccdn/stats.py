@@ -1,10 +1,11 @@
-"""Medians and quantiles for the detect path, without numpy's own.
+"""Medians, quantiles and vector lengths for the detect path, without numpy's own.
 
 np.median and np.percentile import numpy.ma on their first call (35-40 ms of a cold start here,
-which parses signatures as it loads) and check for masked arrays on every call. These work on the
-small plain arrays the detector has (gaps between peaks, tolerances, a few values per row) and
-give np.median's and np.percentile's values to the bit (median: the mean of the two middle
-values; quantile: numpy's default linear interpolation).
+which parses signatures as it loads) and check for masked arrays on every call; np.linalg.norm's
+argument handling costs more than its work on a few (x, y) vectors. These work on the small plain
+arrays the detector has (gaps between peaks, tolerances, a few values per row, lattice steps) and
+give np.median's, np.percentile's and np.linalg.norm's values to the bit (median: the mean of the
+two middle values; quantile: numpy's default linear interpolation).
 """
 
 from __future__ import annotations
@@ -45,3 +46,8 @@ def nanmedian_rows(a: np.ndarray) -> np.ndarray:
     median = (ordered[rows, (n - 1) // 2] + ordered[rows, n // 2]) / 2
     median[n == 0] = np.nan
     return median
+
+
+def vector_lengths(vectors: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The lengths of vectors whose (x, y) run along `axis`: np.linalg.norm(vectors, axis=axis), to the bit."""
+    return np.sqrt((vectors * vectors).sum(axis))
