@@ -12,6 +12,12 @@ shortest is taken. With uneven_seeds=1 (the detector's full-frame pass) a second
 left after that one lets one of a square's four corners have non-uniform quads (an occluder's edge or
 a mark printed in a square crossing them; held-out stress renders: a small occluded board found, 13
 corners; tried before the strict round, or on shrunk frames, it changed which boards those find).
+Once a board is found, a last round over the seeds left lets two of a square's corners have
+non-uniform quads (BEHIND_UNEVEN): where one board lies in front of another, its outline crosses
+the quads of two corners of every square of the one behind along it, and what is left visible of
+that one may be an L or a strip (stress two-boards renders, README sample: 28 -> 16 corners missed;
+the other subsets and real-dev unchanged; on every pass, without a board found first it changed
+which boards the shrunk passes find: extreme pose 18 -> 64 missed).
 The board then grows, first ring-at-once while it looks flat: a homography fitted to the grid so
 far predicts every cell up to the grid's own extent beyond it, and the free corners within 0.3 of
 the shorter lattice step of a prediction that pass the image test join where they connect to the
@@ -69,7 +75,10 @@ edge through the corner curves the grey levels more than a quadric holds), the c
 crossing of its lattice lines fitted to its squares' edges on the log scale (ccdn.edges), taken
 where each of its four half-edges shows at least EVEN_EDGES of the strongest one's contrast (on a
 board's outline one runs into the margin: without this test a radial and a two-boards render took
-2 false corners each): shadow renders 109 -> 92 missed, 1440 others unchanged. A prediction that
+2 false corners each): shadow renders 109 -> 92 missed, 1440 others unchanged; the ring test
+(x_like) does not judge such a crossing: the shadow's edge across the corner puts the ring's first
+harmonic above its second, on the log scale too (stress shadow renders, README sample: 21 -> 7
+corners missed; held-out 8 either way; no false positive more). A prediction that
 fails the strict test itself, in a gap of the board (filled neighbours on both sides along its row
 or column) where its quads look like the board's in shade (a shadow's edge across the corner leaves
 a quad half lit, or a lit dark square lighter than a shaded light one), goes to the edge-line fit
@@ -169,6 +178,7 @@ MIN_SINE = 0.3  # of the angle between the lattice steps: flatter cells are too 
 MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sharper turn is a wrong corner ...
 KINK_PX = 2.0  # ... where it also moves the shorter step's end this far (small squares' corner error turns steps)
 GROWTH_TURN = 20.0  # growth's own limit, looser: a wrong corner taken first must not keep out the true one
+BEHIND_UNEVEN = 2  # corners of a seed square with non-uniform quads in the last round (module docstring)
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
 RELATIVE_CONTRAST = 0.05  # of the seed's median contrast: a board's part in deep shade keeps a fifth to a
 # twentieth of its lit part's (stress shadow renders, 0.2 before: 12.2 -> 10.5 % missed; every other render the same)
@@ -557,7 +567,9 @@ class _Grower:
         if (on_edges := (shaded & ~good) | edge_only).any():  # no saddle on either scale: its edge lines' crossing
             points[on_edges], good[on_edges] = self._on_edge_lines(preds[on_edges], u[on_edges], v[on_edges])
         shift = vector_lengths(points - preds)
-        good &= (shift <= tol) & x_like(self.gray, points, tol / TOLERANCE)  # not just two quad pairs that differ
+        # not just two quad pairs that differ; the edge lines' crossing is judged by its half-edges instead
+        # (_on_edge_lines, module docstring)
+        good &= (shift <= tol) & (x_like(self.gray, points, tol / TOLERANCE) | on_edges)
         good &= _inside(points, self.gray.shape)
         if (again := good & saddle).any():  # edge_only's are judged by their half-edges instead (_on_edge_lines)
             good[again] = self._accepts(cells[again], points[again], u[again], v[again], True, COMPLETION_MIN_PAIRS,
@@ -901,25 +913,25 @@ def _row_col_neighbours(filled: np.ndarray) -> np.ndarray:
 
 
 def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray,
-                  free: np.ndarray, uneven: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  free: np.ndarray, uneven: tuple[int, ...] = (0,)) -> list[tuple[np.ndarray, ...]]:
     """A verified square at each seed corner, all seeds at once (neighbours (S, K): each seed's
-    nearest corners, nearest first; only free ones count).
+    nearest corners, nearest first; only free ones count), for each count in `uneven` of a square's
+    corners that may have non-uniform quads (0, 1 or BEHIND_UNEVEN, strictest first; find_boards):
+    one sampling serves them all (a looser count's shortest passing square is among the squares
+    sampled for the strictest, which samples further only for the seeds none of whose shortest passed).
 
     A square is p, p + u, p + v and a fourth corner near p + u + v, with u, v from the seed's
     SEED_NEIGHBOURS nearest free corners, whose four corners pass the image test; of the passing
-    bases the shortest is taken (the colour test cannot tell (u, v) from (u, v + 2u)). Returns
-    found (S,), corners (S, 4) ordered (0,0), (0,1), (1,0), (1,1) with u x v > 0 (+col, +row like
-    image +x, +y), the board's sign (S,) (+: quads of even row + col are light) and contrast (S,).
-    uneven: how many of a square's corners may have non-uniform quads (0 or 1; find_boards).
+    bases the shortest is taken (the colour test cannot tell (u, v) from (u, v + 2u)). Returns, per
+    count: found (S,), corners (S, 4) ordered (0,0), (0,1), (1,0), (1,1) with u x v > 0 (+col, +row
+    like image +x, +y), the board's sign (S,) (+: quads of even row + col are light) and contrast (S,).
     """
     if len(seeds) > SEED_CHUNK:  # bounds the (seeds x pairs x neighbours) arrays
         parts = [_seed_squares(xy, sampler, seeds[k : k + SEED_CHUNK], neighbours[k : k + SEED_CHUNK], free, uneven)
                  for k in range(0, len(seeds), SEED_CHUNK)]
-        return tuple(np.concatenate(arrays) for arrays in zip(*parts))
+        return [tuple(np.concatenate(arrays) for arrays in zip(*level)) for level in zip(*parts)]
     n_seeds = len(seeds)
-    found = np.zeros(n_seeds, bool)
-    corners = np.zeros((n_seeds, 4), np.int64)
-    sign, contrast = np.zeros(n_seeds), np.zeros(n_seeds)
+    none = (np.zeros(n_seeds, bool), np.zeros((n_seeds, 4), np.int64), np.zeros(n_seeds), np.zeros(n_seeds))
     valid = free[neighbours]
     order = np.argsort(~valid, axis=1, kind="stable")  # free neighbours first, nearest first
     candidates = np.take_along_axis(neighbours, order, 1)
@@ -950,18 +962,18 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     keep = ((d2[np.arange(len(si)), nearest] < tol**2) & (fourth != seeds[si]) & (fourth != a) & (fourth != b))
     si, a, b, fourth, uu, vv, size = si[keep], a[keep], b[keep], fourth[keep], uu[keep], vv[keep], size[keep]
     if len(si) == 0:
-        return found, corners, sign, contrast
+        return [none] * len(uneven)
     square = np.stack([seeds[si], a, b, fourth], 1)  # (G, 4)
     by_size = np.lexsort((size, si))  # each seed's squares, shortest first
     rank = np.empty(len(si), np.int64)
     rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
-    passed = np.zeros(len(si), bool)
+    passed = np.zeros((len(uneven), len(si)), bool)
     g_sign, g_contrast = np.zeros(len(si)), np.zeros(len(si))
     first_round = rank < 3  # the image test is the costly part: the shortest squares first ...
     for second in (False, True):  # ... the rest only for the seeds whose shortest all failed
         if second:  # the squares of seeds none of whose squares passed yet (a lookup, not np.isin's sort)
             seed_passed = np.zeros(n_seeds, bool)
-            seed_passed[si[passed]] = True
+            seed_passed[si[passed[0]]] = True
             t = np.nonzero(~first_round & ~seed_passed[si])[0]
         else:
             t = np.nonzero(first_round)[0]
@@ -978,19 +990,43 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
         diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
-        # the square's spread: that of its 4 - uneven most uniform corners
-        spread = np.sort(np.concatenate([seed_spread[:, None], spread.reshape(-1, 3)], 1), 1)[:, 3 - uneven]
+        # the square's spread for each count: that of its 4 - uneven most uniform corners
+        spreads = np.sort(np.concatenate([seed_spread[:, None], spread.reshape(-1, 3)], 1), 1)
         g_sign[t] = np.sign(median(diffs, axis=1))
         g_contrast[t] = median(diffs * g_sign[t][:, None], axis=1)
         with np.errstate(invalid="ignore"):
-            passed[t] = ((g_sign[t] != 0) & (spread < 0.5 * g_contrast[t])
-                         & (np.min(diffs * g_sign[t][:, None], axis=1) > np.maximum(MIN_CONTRAST, 0.4 * g_contrast[t])))
-    best = by_size[passed[by_size]]  # passing squares by seed, shortest first
-    first = best[np.unique(si[best], return_index=True)[1]]
-    found[si[first]] = True
-    corners[si[first]] = square[first]
-    sign[si[first]], contrast[si[first]] = g_sign[first], g_contrast[first]
-    return found, corners, sign, contrast
+            even = (g_sign[t] != 0) & (np.min(diffs * g_sign[t][:, None], axis=1)
+                                       > np.maximum(MIN_CONTRAST, 0.4 * g_contrast[t]))
+            for level, count in enumerate(uneven):
+                passed[level, t] = even & (spreads[:, 3 - count] < 0.5 * g_contrast[t])
+    results = []
+    for level_passed in passed:
+        found, corners, sign, contrast = (part.copy() for part in none)
+        best = by_size[level_passed[by_size]]  # passing squares by seed, shortest first
+        first = best[np.unique(si[best], return_index=True)[1]]
+        found[si[first]] = True
+        corners[si[first]] = square[first]
+        sign[si[first]], contrast[si[first]] = g_sign[first], g_contrast[first]
+        results.append((found, corners, sign, contrast))
+    return results
+
+
+def _behind_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
+                    behind: list[tuple[int, np.ndarray, tuple[np.ndarray, ...]]],
+                    grown: int) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
+    """The last round's squares (BEHIND_UNEVEN uneven corners) of the free `seeds` and each seed's row
+    in them: those the earlier rounds sampled after the last board was grown (`behind`: (boards grown
+    then, seeds, their squares)) as they are, the others sampled now."""
+    fresh = [(ahead, squares) for when, ahead, squares in behind if when == grown]
+    known = np.zeros(len(xy), bool)
+    for ahead, _ in fresh:
+        known[ahead] = True
+    if not known[seeds].all():
+        stale = seeds[~known[seeds]]
+        fresh.append((stale, _seed_squares(xy, sampler, stale, neighbours[stale], free, (BEHIND_UNEVEN,))[0]))
+    ahead = np.concatenate([a for a, _ in fresh])
+    squares = tuple(np.concatenate(parts) for parts in zip(*(q for _, q in fresh)))
+    return squares, dict(zip(ahead.tolist(), range(len(ahead))))  # a seed sampled twice: its last row
 
 
 def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.ndarray | None, added: list,
@@ -1087,7 +1123,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     (their indices then start at 0 where the found part starts). See the module docstring for the
     orientation of the indices. complete: also take corners the image shows where the grid predicts
     one that xy lacks (module docstring); their corner_index is >= len(xy), their position in Board.xy.
-    uneven_seeds: how many corners of a seed square may have non-uniform quads (0 or 1; module docstring).
+    uneven_seeds: how many corners of a seed square may have non-uniform quads (0 or 1) before the last round
+    (module docstring).
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
@@ -1135,27 +1172,38 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     free = _inside(xy, gray.shape)  # corners at the frame's edge are in no board
     found, added = [], []
     # strict seed squares first; squares with uneven corners only among the seeds left when they are done
-    # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less)
-    for uneven in range(uneven_seeds + 1):
+    # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less);
+    # squares with BEHIND_UNEVEN uneven corners last, once a board is found (module docstring)
+    grown = 0  # boards grown so far: `free` changes only then
+    behind: list[tuple[int, np.ndarray, tuple[np.ndarray, ...]]] = []  # (grown, seeds, their squares at BEHIND_UNEVEN)
+    for uneven in [*range(uneven_seeds + 1), BEHIND_UNEVEN]:
+        last = uneven == BEHIND_UNEVEN
+        if last and not (grown and free[seeds].any()):
+            break
         batch: dict[int, int] = {}  # seed -> its row in squares, checked in growing batches of the free seeds
         size = 1 if uneven == 0 else SEED_CHUNK
+        if last:  # the earlier rounds sampled the squares of the last round too: sampled since the last board, they hold
+            squares, batch = _behind_squares(xy, sampler, seeds[free[seeds]], neighbours, free, behind, grown)
         for k, s in enumerate(seeds.tolist()):
             if not free[s]:
                 continue
             if s not in batch:
                 ahead = seeds[k:][free[seeds[k:]]][:size]
                 size = min(4 * size, SEED_CHUNK)  # the first seed usually finds the board
-                squares = _seed_squares(xy, sampler, ahead, neighbours[ahead], free, uneven)
+                squares, *later = _seed_squares(xy, sampler, ahead, neighbours[ahead], free,
+                                                (uneven,) if last else (uneven, BEHIND_UNEVEN))
                 batch = dict(zip(ahead.tolist(), range(len(ahead))))
+                behind.extend((grown, ahead, part) for part in later)
             square = [part[batch[s]] for part in squares]
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in _seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
-                                                            uneven)]
+                                                            (uneven,))[0]]
             grower = (_grow_board(xy, free, sampler, gray if complete else None, added, square, gaps) if square[0]
                       else None)
             if grower is None:
                 continue
             grid, idx = grower.cells()
+            grown += 1
             free[idx[idx < n]] = False  # a board of another size still owns its corners
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
             added.extend(grower.added)
