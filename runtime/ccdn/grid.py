@@ -490,7 +490,8 @@ class _Grower:
             free = np.nonzero(self.free)[0]
             if len(free) == 0:
                 return
-            filled = np.argwhere(self.idx >= 0)
+            taken = self.idx >= 0
+            filled = np.argwhere(taken)
             grid = (filled - self.origin)[:, ::-1].astype(np.float64)  # (col, row), like (x, y)
             points = self.pos[filled[:, 0], filled[:, 1]]
             homography, _ = cv2.findHomography(grid, points, 0)
@@ -503,23 +504,25 @@ class _Grower:
             cells = np.rint(inverse[:, ::-1] + self.origin)  # (row, col) on the canvas
             lo, hi = filled.min(0), filled.max(0)
             reach = np.minimum(hi - lo + 1, CANVAS_MARGIN)
-            near = np.isfinite(cells).all(1) & (cells >= np.maximum(lo - reach, 0)).all(1)
-            near &= (cells <= np.minimum(hi + reach, np.array(self.idx.shape) - 1)).all(1)
+            # NaN fails both comparisons, infinity one: no finiteness test needed
+            near = ((cells >= np.maximum(lo - reach, 0))
+                    & (cells <= np.minimum(hi + reach, np.array(taken.shape) - 1))).all(1)
             cells = cells[near].astype(np.int64)
-            cells = cells[_first_of_each_cell(cells, self.idx.shape[1])]
-            cells = cells[self.idx[cells[:, 0], cells[:, 1]] < 0]
+            hit = np.zeros(taken.shape, bool)  # each empty cell once, in (row, col) order (np.unique's)
+            hit[cells[:, 0], cells[:, 1]] = True
+            cells = np.argwhere(hit & ~taken)
             if len(cells) == 0:
                 return
             preds, u, v = _project_with_steps(homography, (cells - self.origin)[:, ::-1].astype(np.float64))
             ok, corners = self._match(cells, preds, TOLERANCE * _shorter(u, v), u, v, False)
             if len(ok) == 0:
                 return
-            mask = (self.idx >= 0).astype(np.uint8)
+            # the grid is one 4-connected component (the seed square, grown by joined cells only): the
+            # cells its flood fill reaches through the matched ones join it
+            mask = taken.astype(np.uint8)
             mask[cells[ok, 0], cells[ok, 1]] = 1
-            _, labels = cv2.connectedComponents(mask, connectivity=4)
-            grid_label = np.zeros(labels.max() + 1, bool)  # a lookup, not np.isin's sort
-            grid_label[labels[filled[:, 0], filled[:, 1]]] = True
-            joined = grid_label[labels[cells[ok, 0], cells[ok, 1]]]
+            cv2.floodFill(mask, None, (int(filled[0, 1]), int(filled[0, 0])), 2, flags=4)
+            joined = mask[cells[ok, 0], cells[ok, 1]] == 2
             if not joined.any():
                 return
             self._place(cells[ok[joined]] - self.origin, corners[joined])
