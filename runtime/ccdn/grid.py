@@ -164,6 +164,8 @@ MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board b
 SEED_NEIGHBOURS = 12  # a seed's square is sought among these nearest corners ...
 SEED_REACH = 24  # ... and its fourth corner among these
 SEED_CHUNK = 256  # seeds checked at once
+FEW_SQUARES = 3  # seed squares up to this many (one seed's first round) are sampled at all 4 corners in one call:
+# a call costs as much as 20-50 corners, while the seed corner alone fails ~4 in 5 of many seeds' squares (clutter)
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 TOLERANCE = 0.3  # of the shorter local lattice step ...
 SLIVER_REACH = 1.5  # ... or of this x the cell's lesser height (altitude), where less: on a sheared sliver
@@ -936,31 +938,34 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     n_seeds = len(seeds)
     none = (np.zeros(n_seeds, bool), np.zeros((n_seeds, 4), np.int64), np.zeros(n_seeds), np.zeros(n_seeds))
     valid = free[neighbours]
-    order = np.argsort(~valid, axis=1, kind="stable")  # free neighbours first, nearest first
-    candidates = np.take_along_axis(neighbours, order, 1)
-    valid = np.take_along_axis(valid, order, 1)
-    nb, nb_valid = candidates[:, :SEED_NEIGHBOURS], valid[:, :SEED_NEIGHBOURS]
+    rows = np.arange(n_seeds)[:, None]
+    free_first = np.argsort(~valid, axis=1, kind="stable")[:, :SEED_NEIGHBOURS]  # free neighbours first, nearest first
+    nb, nb_valid = neighbours[rows, free_first], valid[rows, free_first]
     i, j = _pairs(nb.shape[1])
-    around = xy[candidates] - xy[seeds][:, None]  # (S, K, 2) candidates relative to their seed
+    around = xy[neighbours] - xy[seeds][:, None]  # (S, K, 2) candidates relative to their seed, in their given order
+    steps = around[rows, free_first]  # (S, N, 2) the steps to the nearest free candidates
     # pairs (u, v) of steps to the nearest candidates (S, P), from each step's coordinates and length
-    step_x, step_y = around[:, :SEED_NEIGHBOURS, 0], around[:, :SEED_NEIGHBOURS, 1]
-    length = vector_lengths(around[:, :SEED_NEIGHBOURS])
+    step_x, step_y = steps[..., 0], steps[..., 1]
+    length = vector_lengths(steps)
     lu, lv = length[:, i], length[:, j]
     cross = step_x[:, i] * step_y[:, j] - step_y[:, i] * step_x[:, j]
     hypot = np.hypot(step_x, step_y)  # _square_enough's lengths (hypot's last bit, not the norm's)
+    longer = np.maximum(lu, lv)
     ok = (nb_valid[:, i] & nb_valid[:, j] & _unsheared(cross, hypot[:, i], hypot[:, j]) & (lu < 5 * lv)
-          & (lv < 5 * lu) & (np.abs(cross) >= MIN_SQUARE_PX * np.maximum(lu, lv)))
+          & (lv < 5 * lu) & (np.abs(cross) >= MIN_SQUARE_PX * longer))
     si, pi = np.nonzero(ok)  # the fourth corner is sought for the plausible pairs only
     flip = cross[si, pi] < 0
     ia, ib = np.where(flip, j[pi], i[pi]), np.where(flip, i[pi], j[pi])  # u x v > 0
     a, b = nb[si, ia], nb[si, ib]
-    uu, vv = around[si, ia], around[si, ib]
-    size = np.maximum(length[si, ia], length[si, ib])  # the longer step
-    around[~valid] = np.inf  # invalid candidates far away
+    uu, vv = steps[si, ia], steps[si, ib]
+    size = longer[si, pi]  # the longer step
+    # the fourth corner: the candidate nearest p + u + v, invalid ones far away (argmin's first of equals: the
+    # same free candidate in the given order as with the free ones first)
+    around[~valid] = np.inf
     target = uu + vv
     d2 = ((around[si, :, 0] - target[:, :1]) ** 2) + ((around[si, :, 1] - target[:, 1:]) ** 2)  # (G, K)
     nearest = d2.argmin(1)
-    fourth = candidates[si, nearest]
+    fourth = neighbours[si, nearest]
     tol = TOLERANCE * np.minimum(lu[si, pi], lv[si, pi])
     keep = ((d2[np.arange(len(si)), nearest] < tol**2) & (fourth != seeds[si]) & (fourth != a) & (fourth != b))
     si, a, b, fourth, uu, vv, size = si[keep], a[keep], b[keep], fourth[keep], uu[keep], vv[keep], size[keep]
@@ -982,19 +987,26 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
             t = np.nonzero(first_round)[0]
         if len(t) == 0:  # usually the second round: every seed passed with one of its shortest
             continue
-        # the seed corner alone first: passing needs its 4 quad pairs to differ one way by MIN_CONTRAST
-        seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM, SEED_AXES)
-        alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
-        t, seed_diffs, seed_spread = t[alternating], seed_diffs[alternating], seed_spread[alternating]
-        if len(t) == 0:
-            continue
-        diffs, spread = quad_differences(sampler, xy[square[t, 1:].ravel()], np.repeat(uu[t], 3, 0),
-                                         np.repeat(vv[t], 3, 0), SEED_REACH_UNIFORM, SEED_AXES)
-        diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
+        # many squares: the seed corner alone first (passing needs its 4 quad pairs to differ one way by MIN_CONTRAST)
+        if len(t) > FEW_SQUARES:
+            seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM,
+                                                       SEED_AXES)
+            alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
+            t, seed_diffs, seed_spread = t[alternating], seed_diffs[alternating], seed_spread[alternating]
+            if len(t) == 0:
+                continue
+            diffs, spread = quad_differences(sampler, xy[square[t, 1:].ravel()], np.repeat(uu[t], 3, 0),
+                                             np.repeat(vv[t], 3, 0), SEED_REACH_UNIFORM, SEED_AXES)
+            diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
+            spread = np.concatenate([seed_spread[:, None], spread.reshape(-1, 3)], 1)
+        else:  # all four corners in one call (a square that fails the seed corner's test fails `even` below)
+            diffs, spread = quad_differences(sampler, xy[square[t].ravel()], np.repeat(uu[t], 4, 0),
+                                             np.repeat(vv[t], 4, 0), SEED_REACH_UNIFORM, SEED_AXES)
+            diffs, spread = diffs.reshape(-1, 4, 4), spread.reshape(-1, 4)
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
         # the square's spread for each count: that of its 4 - uneven most uniform corners
-        spreads = np.sort(np.concatenate([seed_spread[:, None], spread.reshape(-1, 3)], 1), 1)
+        spreads = np.sort(spread, 1)
         g_sign[t] = np.sign(median(diffs, axis=1))
         g_contrast[t] = median(diffs * g_sign[t][:, None], axis=1)
         with np.errstate(invalid="ignore"):
@@ -1006,7 +1018,10 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
     for level_passed in passed:
         found, corners, sign, contrast = (part.copy() for part in none)
         best = by_size[level_passed[by_size]]  # passing squares by seed, shortest first
-        first = best[np.unique(si[best], return_index=True)[1]]
+        owner = si[best]
+        head = np.ones(len(best), bool)  # each seed's first (np.unique's first occurrences, without its sort)
+        head[1:] = owner[1:] != owner[:-1]
+        first = best[head]
         found[si[first]] = True
         corners[si[first]] = square[first]
         sign[si[first]], contrast[si[first]] = g_sign[first], g_contrast[first]
