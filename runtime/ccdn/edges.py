@@ -144,8 +144,7 @@ def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tupl
     for _ in range(ITERATIONS):
         offsets = _edge_lines(image, extent, current, half_edges)  # (M, 2 lines)
         shifted = current + (inverse * offsets[:, None]).sum(2)  # NaN where no crossing
-        move = shifted - start
-        moved = np.sqrt((move * move).sum(1)) <= MAX_MOVE
+        moved = vector_lengths(shifted - start) <= MAX_MOVE
         current = np.where(moved[:, None], shifted, start)
     return (current + origin).astype(np.float32), moved
 

@@ -1030,12 +1030,12 @@ def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbour
 
 
 def _behind_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
-                    behind: list[tuple[int, np.ndarray, tuple[np.ndarray, ...]]],
-                    grown: int) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
+                    behind: list[tuple[np.ndarray, tuple[np.ndarray, ...]]]
+                    ) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
     """The last round's squares (BEHIND_UNEVEN uneven corners) of the free `seeds` and each seed's row
-    in them: those the earlier rounds sampled after the last board was grown (`behind`: (boards grown
-    then, seeds, their squares)) as they are, the others sampled now."""
-    fresh = [(ahead, squares) for when, ahead, squares in behind if when == grown]
+    in them: those the earlier rounds sampled since the last board was grown (`behind`: (seeds, their
+    squares)) as they are, the others sampled now."""
+    fresh = list(behind)
     known = np.zeros(len(xy), bool)
     for ahead, _ in fresh:
         known[ahead] = True
@@ -1192,16 +1192,16 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     # strict seed squares first; squares with uneven corners only among the seeds left when they are done
     # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less);
     # squares with BEHIND_UNEVEN uneven corners last, once a board is found (module docstring)
-    grown = 0  # boards grown so far: `free` changes only then
-    behind: list[tuple[int, np.ndarray, tuple[np.ndarray, ...]]] = []  # (grown, seeds, their squares at BEHIND_UNEVEN)
+    grown = False
+    behind: list[tuple[np.ndarray, tuple[np.ndarray, ...]]] = []  # (seeds, their squares at BEHIND_UNEVEN)
     for uneven in [*range(uneven_seeds + 1), BEHIND_UNEVEN]:
         last = uneven == BEHIND_UNEVEN
         if last and not (grown and free[seeds].any()):
             break
         batch: dict[int, int] = {}  # seed -> its row in squares, checked in growing batches of the free seeds
         size = 1 if uneven == 0 else SEED_CHUNK
-        if last:  # the earlier rounds sampled the squares of the last round too: sampled since the last board, they hold
-            squares, batch = _behind_squares(xy, sampler, seeds[free[seeds]], neighbours, free, behind, grown)
+        if last:  # the earlier rounds sampled the last round's squares too: since the last board grew, they hold
+            squares, batch = _behind_squares(xy, sampler, seeds[free[seeds]], neighbours, free, behind)
         for k, s in enumerate(seeds.tolist()):
             if not free[s]:
                 continue
@@ -1211,7 +1211,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
                 squares, *later = _seed_squares(xy, sampler, ahead, neighbours[ahead], free,
                                                 (uneven,) if last else (uneven, BEHIND_UNEVEN))
                 batch = dict(zip(ahead.tolist(), range(len(ahead))))
-                behind.extend((grown, ahead, part) for part in later)
+                behind.extend((ahead, part) for part in later)
             square = [part[batch[s]] for part in squares]
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in _seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
@@ -1221,7 +1221,8 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             if grower is None:
                 continue
             grid, idx = grower.cells()
-            grown += 1
+            grown = True
+            behind.clear()  # sampled while the board's corners were free: `free` changes only here
             free[idx[idx < n]] = False  # a board of another size still owns its corners
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
             added.extend(grower.added)
