@@ -547,6 +547,25 @@ def test_a_board_behind_another_seeds_where_two_corners_of_each_square_are_cover
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [49]
 
 
+def test_two_boards_grown_into_one_through_their_seam_are_split_at_it(monkeypatch):
+    """In the stress set's two-boards render 7120937 (fresh renders, seeds from the 60th on) the top
+    outline of the front board lies on the board behind, whose squares make two points of it
+    alternate like corners; growth took them and walked on onto the back board's lattice: one board
+    of 108 corners, wrongly indexed, the two seam points false. Their row is a bridge (2 corners
+    between lines of 13 and 6: ccdn.grid.BRIDGE): the board is cut there and the larger side kept;
+    the other side is found as a board of its own. Both indexed as they are, no false corner."""
+    import ccdn
+    scene = stress_scene("two-boards", 7_120_937)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [54, 52]
+    for board in boards:
+        label = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2).argmin(1)
+        assert len(set(scene.board_index[label])) == 1 and index_map(board, scene.grid[label]) is not None
+        assert nearest_distances(board.xy, scene.corners[label]).max() < 0.2
+    monkeypatch.setattr("ccdn.grid.BRIDGE", 0.0)
+    assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [108]
+
+
 def test_the_corners_a_soft_shadows_edge_runs_across_complete_on_their_edge_lines():
     """In the stress set's shadow render 7160021 a soft shadow's edge runs across a narrow board
     (3 x 7 corners); its lit part was found (11 corners) and completion's fits at the shaded

@@ -44,7 +44,11 @@ row and its column each hold a corner of two neighbours or more, and its four ha
 110 -> 76, two-boards 101 -> 95, 20 false positives either way; 280 fresh renders of 7 subsets:
 occluded 59 -> 29, two-boards 42 -> 39, the others unchanged). An outermost row or column that is a
 stub of the line inside it (at most 0.3 of its length) is dropped too, unless the frame cuts it
-(clutter continuing the pattern beyond an edge). A grid of at
+(clutter continuing the pattern beyond an edge). An inner row or column that holds at most BRIDGE
+of the corners of each line beside it joins two boards: where one board lies in front of another,
+points on its outline alternate like corners where the one behind shows through, and growth walked
+over them onto the other's lattice (a wrongly indexed board); the grid is cut there and the larger
+side kept (_Grower.split_at_bridge). A grid of at
 least 2 x 3 positions and 8 corners is a board (two rows or columns: the strip of a board that
 another hides; 3 x 3 before, which lost two such strips of 9 and 18 corners in the four stress
 samples' 1440 renders and changed nothing else there, on real-dev or its perturbed photos); its
@@ -195,6 +199,9 @@ SHADE_OFFSET = 8.0  # grey levels: PAIR_RATIO and the strict test's evenness and
 WIDE_SPREAD = 1.5  # growth's image test: quads sampled as widely as a seed's vary by at most this x their contrast ...
 CROWDED = 0.75  # ... at a corner with another this close (x the shorter lattice step): other corners in its cells
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
+BRIDGE = 0.4  # an inner line this short against both lines beside it joins two boards (_Grower.split_at_bridge) ...
+MIN_BRIDGED = 4  # ... where each of those holds this many corners ...
+SEAM_RESIDUAL = 0.1  # ... and a homography fitted to the three lines misses one by this x the shorter step
 COMPLETION_MIN_PAIRS = 2  # quad pairs on the image a completed corner needs: one pair alone, at the frame's edge,
 # is an edge (a board's outline there took indices: held-out stress renders 3 false positives fewer, 2 corners
 # 1.5-2 px from the frame's edge fewer; the benchmark's renders 2 such corners fewer)
@@ -823,6 +830,54 @@ class _Grower:
         self.idx[drop] = -1
         self.pos[drop] = np.nan
 
+    def split_at_bridge(self) -> None:
+        """Cut the grid at a seam between two boards grown into one, keeping the larger side: an inner
+        row or column holding at most BRIDGE of the corners of each line beside it (each of
+        MIN_BRIDGED or more) where those three lines are not one lattice (a homography fitted to
+        them misses one by more than SEAM_RESIDUAL of the step). Where one board lies in front of
+        another, points on its outline alternate like corners where the one behind shows through,
+        and growth walked over them onto the other's lattice (a fresh stress two-boards render: one
+        wrongly indexed board of 108 corners, 2 between lines of 13 and 6). On one board such a line
+        is one that a shadow's edge runs along (a stress shadow render: 1 between 6 and 6)."""
+        while True:
+            filled = self.idx >= 0
+            for axis in (0, 1):
+                counts = filled.sum(1 - axis)
+                beside = np.minimum(counts[:-2], counts[2:])
+                bridges = np.nonzero((counts[1:-1] > 0) & (beside >= MIN_BRIDGED)
+                                     & (counts[1:-1] <= BRIDGE * beside))[0] + 1
+                seams = [line for line in bridges.tolist() if self._two_lattices(axis, line)]
+                if seams:
+                    line = seams[0]
+                    drop = np.zeros(len(counts), bool)
+                    drop[line] = True
+                    drop[:line] = counts[:line].sum() < counts[line + 1:].sum()
+                    drop[line + 1:] = ~drop[0]
+                    cut = np.broadcast_to(drop[:, None] if axis == 0 else drop[None, :], filled.shape)
+                    self.idx[cut] = -1
+                    self.pos[cut] = np.nan
+                    break
+            else:
+                return
+
+    def _two_lattices(self, axis: int, line: int) -> bool:
+        """Whether the corners of canvas row (axis 0) or column (axis 1) `line` and the lines beside
+        it lie on no one lattice: a homography fitted to them misses one by over SEAM_RESIDUAL of
+        the shorter step."""
+        near = np.zeros(self.idx.shape, bool)
+        if axis == 0:
+            near[line - 1:line + 2] = True
+        else:
+            near[:, line - 1:line + 2] = True
+        cells = np.argwhere(near & (self.idx >= 0))
+        grid = (cells - self.origin)[:, ::-1].astype(np.float64)
+        points = self.pos[cells[:, 0], cells[:, 1]]
+        homography, _ = cv2.findHomography(grid, points, 0)
+        if homography is None:
+            return True
+        fitted, u, v = _project_with_steps(homography, grid)
+        return bool((vector_lengths(fitted - points) > SEAM_RESIDUAL * _shorter(u, v)).any())
+
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
         """The board so far: grid positions (M, 2) (row, col) and corner indices (M,)."""
         rc = np.argwhere(self.idx >= 0)
@@ -1060,6 +1115,8 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     grower.unkink()
     grower.prune()
     grower.trim_outline()
+    if gray is not None:
+        grower.split_at_bridge()
     grid, idx = grower.cells()
     if len(idx) < MIN_CORNERS or (grid.max(0) - grid.min(0) + 1).min() < MIN_EXTENT:
         return None
