@@ -248,7 +248,8 @@ def test_squares_too_small_for_the_halved_frame_get_the_full_resolution_pass(sma
 def test_a_board_whose_squares_thin_too_much_on_the_halved_frame_gets_the_full_resolution_pass(monkeypatch):
     """The stress set's fisheye render 7010145: the halved frame's squares are big at the board's
     middle and a few px across at its rim, where `fast` cannot follow them; kept, that pass found 61
-    of the 77 corners. Its thinnest squares under THIN_SQUARE send the frame on: all 77."""
+    of the 77 corners (67 since completion's loose fits, session 38). Its thinnest squares under
+    THIN_SQUARE send the frame on: all 77."""
     from ccdn import detector as detector_module
 
     scene = stress_scene("fisheye", 7_010_145)
@@ -258,7 +259,7 @@ def test_a_board_whose_squares_thin_too_much_on_the_halved_frame_gets_the_full_r
     monkeypatch.setattr(detector_module, "THIN_SQUARE", 0.0)
     detector = ccdn.Detector(threads=2)
     shapes = _network_frames(detector)
-    assert (nearest_distances(detector.detect(scene.image).xy, scene.corners) < 1.5).sum() <= 65
+    assert (nearest_distances(detector.detect(scene.image).xy, scene.corners) < 1.5).sum() <= 70
     assert shapes == [(240, 320, ccdn.models.default_coarse_model())]  # the halved frame alone
 
 
@@ -406,21 +407,25 @@ def test_corners_in_a_soft_shadow_are_fitted_on_the_log_scale():
     assert (nearest_distances(found.xy, scene.corners) < 1.5).all()
 
 
-def test_a_board_continues_past_a_line_the_shadows_edge_hides():
+def test_a_board_continues_past_a_line_the_shadows_edge_hides(monkeypatch):
     """A shadow's sharp edge along a row of corners darkens two quads of each: that row fails the
     image test, and growth and completion, which step one position at a time, stopped there (the
     stress set's shadow render 7160200: 17 of 27 corners, the lit part; the network on the halved
     frame gives no peaks in the shade). Completion also asks the image two positions out, past such a
-    line, where the quads alternate at their centres (ccdn.grid's _beyond): 21 now, the 4 more in
-    the shade, in the same board, every one a true corner."""
+    line, where the quads alternate at their centres (ccdn.grid's _beyond): 21 then, the 4 more in
+    the shade, in the same board, every one a true corner, the line between them empty. Since
+    session 38 completion also fits corners there where only growth's plain test passes and their
+    half-edges are even (ccdn.grid.LOOSE_EDGES): 25, the line filled but for one."""
     scene = stress_scene("shadow", 7_160_200)
-    found = ccdn.Detector(threads=2).detect(scene.image)
-    assert len(scene.corners) == 27 and len(found.boards) == 1
-    board = found.boards[0]
-    assert (nearest_distances(scene.corners, board.xy) < 1.5).all()  # every corner found is a true one
-    assert (nearest_distances(board.xy, scene.corners) < 1.5).sum() >= 21
-    lines = [np.unique(board.grid[:, axis]) for axis in (0, 1)]
-    assert any(np.diff(line).max() == 2 for line in lines)  # corners on both sides of an empty line
+    for loose_edges, least, gap in ((0.6, 25, 1), (1.1, 21, 2)):  # 1.1: no loose fit passes
+        monkeypatch.setattr("ccdn.grid.LOOSE_EDGES", loose_edges)
+        found = ccdn.Detector(threads=2).detect(scene.image)
+        assert len(scene.corners) == 27 and len(found.boards) == 1
+        board = found.boards[0]
+        assert (nearest_distances(scene.corners, board.xy) < 1.5).all()  # every corner found is a true one
+        assert (nearest_distances(board.xy, scene.corners) < 1.5).sum() >= least
+        lines = [np.unique(board.grid[:, axis]) for axis in (0, 1)]
+        assert max(np.diff(line).max() for line in lines) == gap  # 2: corners on both sides of an empty line
 
 
 def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):

@@ -547,6 +547,14 @@ def test_a_board_behind_another_seeds_where_two_corners_of_each_square_are_cover
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [49]
 
 
+def _true_board(board, scene, within: float) -> bool:
+    """Whether a found board's corners lie on one true board of the render, indexed as it is (one
+    rotation and offset), each within `within` px of its label."""
+    label = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2).argmin(1)
+    return (len(set(scene.board_index[label])) == 1 and index_map(board, scene.grid[label]) is not None
+            and nearest_distances(board.xy, scene.corners[label]).max() < within)
+
+
 def test_two_boards_grown_into_one_through_their_seam_are_split_at_it(monkeypatch):
     """In the stress set's two-boards render 7120937 (fresh renders, seeds from the 60th on) the top
     outline of the front board lies on the board behind, whose squares make two points of it
@@ -558,12 +566,39 @@ def test_two_boards_grown_into_one_through_their_seam_are_split_at_it(monkeypatc
     scene = stress_scene("two-boards", 7_120_937)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert [len(board) for board in boards] == [54, 52]
-    for board in boards:
-        label = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2).argmin(1)
-        assert len(set(scene.board_index[label])) == 1 and index_map(board, scene.grid[label]) is not None
-        assert nearest_distances(board.xy, scene.corners[label]).max() < 0.2
+    assert all(_true_board(board, scene, 0.2) for board in boards)
     monkeypatch.setattr("ccdn.grid.BRIDGE", 0.0)
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [108]
+
+
+def test_a_corner_whose_quad_the_other_board_covers_completes_where_its_half_edges_are_even(monkeypatch):
+    """In the stress set's two-boards render 7120213 (README sample) the back board's corner next to
+    the front board has no network peak, and completion's strict test fails at its prediction: the
+    front board covers part of one quad. Growth's plain test (one quad may be hidden) passes there,
+    and the fit is taken where its four half-edges are even (ccdn.grid.LOOSE_EDGES): 41 of the back
+    board's corners instead of 40, every one in one board, indexed as it is, within 0.15 px."""
+    import ccdn
+    scene = stress_scene("two-boards", 7_120_213)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [54, 41]
+    assert all(_true_board(board, scene, 0.15) for board in boards)
+    monkeypatch.setattr("ccdn.grid.LOOSE_EDGES", 1.1)  # no half-edge that even: the strict test alone
+    assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [54, 40]
+
+
+def test_a_corner_kept_where_an_occluder_hides_its_neighbours_links_its_line_in_later_prune_rounds():
+    """In the stress set's occluded render 7140830 (fresh renders, seeds from the 60th on) an occluder
+    hides a row of the board; beyond it a row of three corners shows. Prune kept the first of them
+    (its row holds a corner of two neighbours, the middle one, its column the board's corners, its
+    half-edges are even: ccdn.grid._Grower._hidden_around) and dropped the last, whose column holds
+    none; the middle one then had one neighbour, and the next round dropped both: each one's row
+    held only the other, neither counted as linked. A kept corner counts as linked in later rounds:
+    24 of the 27 corners, one board, indexed as it is (22 before)."""
+    import ccdn
+    scene = stress_scene("occluded", 7_140_830)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [24]
+    assert _true_board(boards[0], scene, 0.1)
 
 
 def test_the_corners_a_soft_shadows_edge_runs_across_complete_on_their_edge_lines():
