@@ -8,102 +8,99 @@ two neighbours p + u, p + v whose sum p + u + v is also a corner (one square of 
 whose four corners pass the image test below, with uniform grey inside each sampled quad, sampled
 out to a quarter of its diagonals (a wrong lattice samples edges; a sheared one such as (u, v + 2u),
 whose quad centres are square centres too, reaches into other squares); of the passing bases the
-shortest is taken. With uneven_seeds=1 (the detector's full-frame pass) a second round over the seeds
-left after that one lets one of a square's four corners have non-uniform quads (an occluder's edge or
-a mark printed in a square crossing them; held-out stress renders: a small occluded board found, 13
-corners; tried before the strict round, or on shrunk frames, it changed which boards those find).
-Once a board is found, a last round over the seeds left lets two of a square's corners have
-non-uniform quads (BEHIND_UNEVEN): where one board lies in front of another, its outline crosses
-the quads of two corners of every square of the one behind along it, and what is left visible of
-that one may be an L or a strip (stress two-boards renders, README sample: 28 -> 16 corners missed;
-the other subsets and real-dev unchanged; on every pass, without a board found first it changed
-which boards the shrunk passes find: extreme pose 18 -> 64 missed).
-The board then grows, first ring-at-once while it looks flat: a homography fitted to the grid so
-far predicts every cell up to the grid's own extent beyond it, and the free corners within 0.3 of
-the shorter lattice step of a prediction that pass the image test join where they connect to the
-grid along rows and columns (a 9 x 9 board fills in ~3 such rounds; a fit off by more than 5 % of a
-step anywhere, as under lens distortion, stops this). Then position by
-position: each empty neighbour of the grid is predicted from the grid (along a row or column from
-the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms with
-diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of the
-shorter local lattice step (or of 1.5 x the cell's lesser height, where that is less: SLIVER_REACH)
-is taken if it passes the image test. No corner is taken where the
-local steps are flatter than a seed's may be (the sine of their angle at most MIN_SINE, in every
-growth step): on the slivers of boards tilted 60-75 degrees the tips where two squares of one colour
-nearly touch score like corners, and a lattice of such tips passed the image test (a stress render:
-16 of a board's 25 corners 2-4 px off). Nor do these rounds or completion take one that turns a
-row or column sharply at it or its neighbours (GROWTH_TURN); once grown, corners are dropped until
-no line turns by more than MAX_TURN (_Grower.unkink): perspective keeps lines straight, lens
+shortest is taken. With uneven_seeds=1 (the detector's full-frame pass) a second round over the
+seeds left after that one lets one of a square's four corners have non-uniform quads (an occluder's
+edge or a mark printed in a square crossing them; held-out stress renders: a small occluded board
+found, 13 corners; tried before the strict round, or on shrunk frames, it changed which boards those
+find). Once a board is found, a last round over the seeds left lets two of a square's corners have
+non-uniform quads (BEHIND_UNEVEN): where one board lies in front of another, its outline crosses the
+quads of two corners of every square of the one behind along it, and what is left visible of that
+one may be an L or a strip (stress two-boards renders, README sample: 28 -> 16 corners missed; the
+other subsets and real-dev unchanged; on every pass, without a board found first it changed which
+boards the shrunk passes find: extreme pose 18 -> 64 missed). The board then grows, first
+ring-at-once while it looks flat: a homography fitted to the grid so far predicts every cell up to
+the grid's own extent beyond it, and the free corners within 0.3 of the shorter lattice step of a
+prediction that pass the image test join where they connect to the grid along rows and columns (a 9
+x 9 board fills in ~3 such rounds; a fit off by more than 5 % of a step anywhere, as under lens
+distortion, stops this). Then position by position: each empty neighbour of the grid is predicted
+from the grid (along a row or column from the previous two or three corners, e.g. 2 p1 - p2, also
+across a hole, and from parallelograms with diagonal neighbours; the median of the predictions), and
+the nearest free corner within 0.3 of the shorter local lattice step (or of 1.5 x the cell's lesser
+height, where that is less: SLIVER_REACH) is taken if it passes the image test. No corner is taken
+where the local steps are flatter than a seed's may be (the sine of their angle at most MIN_SINE, in
+every growth step): on the slivers of boards tilted 60-75 degrees the tips where two squares of one
+colour nearly touch score like corners, and a lattice of such tips passed the image test (a stress
+render: 16 of a board's 25 corners 2-4 px off). Nor do these rounds or completion take one that
+turns a row or column sharply at it or its neighbours (GROWTH_TURN); once grown, corners are dropped
+until no line turns by more than MAX_TURN (_Grower.unkink): perspective keeps lines straight, lens
 distortion bends them gently, and tips so scored let growth wander off the true lattice one
-tolerated step at a time. When nothing more can be added,
-growth may jump over one missing position along a row or column (a hole, not the end of the
-board). Corners left with fewer than two row/column neighbours are then dropped (lone points on the
-outline), except, completing, one whose other neighbours something in front of the board hides: its
-row and its column each hold a corner of two neighbours or more, and its four half-edges are even
-(_Grower._hidden_around; the four stress samples' 1440 renders: 323 -> 281 corners missed, occluded
-110 -> 76, two-boards 101 -> 95, 20 false positives either way; 280 fresh renders of 7 subsets:
-occluded 59 -> 29, two-boards 42 -> 39, the others unchanged); a corner so kept counts as such a
-corner in prune's later rounds (before, where its neighbour lost its other neighbour, the next round
-dropped both, each one's line holding only the other: the 300 occluded, two-boards and shadow
-renders of four stress samples, 6 corners more in 3, nothing else changed). An outermost row or
-column that is a stub of the line inside it (at most 0.3 of its length) is dropped too, unless the frame cuts it
-(clutter continuing the pattern beyond an edge). An inner row or column that holds at most BRIDGE
-of the corners of each line beside it, where those three lines are no one lattice, joins two boards: where one board lies in front of another,
-points on its outline alternate like corners where the one behind shows through, and growth walked
-over them onto the other's lattice (a wrongly indexed board); the grid is cut there and the larger
-side kept (_Grower.split_at_bridge). A grid of at
-least 2 x 3 positions and 8 corners is a board (two rows or columns: the strip of a board that
-another hides; 3 x 3 before, which lost two such strips of 9 and 18 corners in the four stress
-samples' 1440 renders and changed nothing else there, on real-dev or its perturbed photos); its
-corners are removed and
-the search repeats for further boards. Corners in no board are dropped, and no corner closer than
-EDGE_MARGIN to the frame's edge joins one (where the frame cuts a board's outline, its one visible
-quad pair alternates like a corner's). Local predictions make this tolerant of perspective and
-strong radial/fisheye distortion.
+tolerated step at a time. When nothing more can be added, growth may jump over one missing position
+along a row or column (a hole, not the end of the board). Corners left with fewer than two
+row/column neighbours are then dropped (lone points on the outline), except, completing, one whose
+other neighbours something in front of the board hides: its row and its column each hold a corner of
+two neighbours or more, and its four half-edges are even (_Grower._hidden_around; the four stress
+samples' 1440 renders: 323 -> 281 corners missed, occluded 110 -> 76, two-boards 101 -> 95, 20 false
+positives either way; 280 fresh renders of 7 subsets: occluded 59 -> 29, two-boards 42 -> 39, the
+others unchanged); a corner so kept counts as such a corner in prune's later rounds (before, where
+its neighbour lost its other neighbour, the next round dropped both, each one's line holding only
+the other: the 300 occluded, two-boards and shadow renders of four stress samples, 6 corners more in
+3, nothing else changed). An outermost row or column that is a stub of the line inside it (at most
+0.3 of its length) is dropped too, unless the frame cuts it (clutter continuing the pattern beyond
+an edge). An inner row or column that holds at most BRIDGE of the corners of each line beside it,
+where those three lines are no one lattice, joins two boards: where one board lies in front of
+another, points on its outline alternate like corners where the one behind shows through, and growth
+walked over them onto the other's lattice (a wrongly indexed board); the grid is cut there and the
+larger side kept (_Grower.split_at_bridge). A grid of at least 2 x 3 positions and 8 corners is a
+board (two rows or columns: the strip of a board that another hides; 3 x 3 before, which lost two
+such strips of 9 and 18 corners in the four stress samples' 1440 renders and changed nothing else
+there, on real-dev or its perturbed photos); its corners are removed and the search repeats for
+further boards. Corners in no board are dropped, and no corner closer than EDGE_MARGIN to the
+frame's edge joins one (where the frame cuts a board's outline, its one visible quad pair alternates
+like a corner's). Local predictions make this tolerant of perspective and strong radial/fisheye
+distortion.
 
 Completion (complete=True): where no given corner lies near a predicted position, the image itself
-is asked: where the image test, made as strict as the seed's (its evenness and uniformity on the
-log scale below), passes at the prediction, a saddle point is fitted there (ccdn.refine, within the
-same tolerance) and taken if it passes the ring test and the strict image test, with at least two
-of its quad pairs on the image (one pair alone, at the
-frame's edge, is what a board's outline shows too). Where the strict test fails but growth's plain
-one passes (one quad may be hidden: an occluder or the other board covers part of the corner's
-surroundings) at a position the board holds on two sides or more (LOOSE_NEIGHBOURS), the fit is
-taken if the plain test passes at it and its four half-edges each show LOOSE_EDGES of the
-strongest one's contrast on the log scale (on a board's outline one runs into the margin): with
-the prune change below, four stress samples' 1140 renders: 311 -> 292 corners missed, 17 -> 15
-false positives, the gains all in the occluded, two-boards and shadow subsets. This recovers the corners the network scored
-too low (shadowed, blurred, or first found on a downscaled frame); such corners get indices >=
-len(xy), in order of addition. A slope in the grey levels shifts a saddle fit's point by slope /
-contrast, so under a soft shadow, whose light falls off across a corner faster than the shaded
-squares differ, the fit found no saddle: where it fails at a prediction whose quads look like the
-board's in shade (lower contrast than the seed's, yet a larger share of the board's on the log
-scale than on the grey scale: shade multiplies grey levels, a board's outline against a mid-grey
-background loses both alike), it is fitted again on the log scale of grey, where the shade's
-factor is an offset and the squares keep the lit ones' contrast (stress shadow renders: 150 -> 109
-of 3819 corners missed over 60 renders, those found 0.13 px off the truth (median); 1440 renders
-of the other subsets: 3 occluded corners more, no false positive more; without the log-scale share,
-a board's outline took a false corner). Where neither scale's fit finds a saddle (a shadow's blurred
-edge through the corner curves the grey levels more than a quadric holds), the corner is the
-crossing of its lattice lines fitted to its squares' edges on the log scale (ccdn.edges), taken
-where each of its four half-edges shows at least EVEN_EDGES of the strongest one's contrast (on a
-board's outline one runs into the margin: without this test a radial and a two-boards render took
-2 false corners each): shadow renders 109 -> 92 missed, 1440 others unchanged; the ring test
-(x_like) does not judge such a crossing: the shadow's edge across the corner puts the ring's first
-harmonic above its second, on the log scale too (stress shadow renders, README sample: 21 -> 7
-corners missed; held-out 8 either way; no false positive more). A prediction that
-fails the strict test itself, in a gap of the board (filled neighbours on both sides along its row
-or column) where its quads look like the board's in shade (a shadow's edge across the corner leaves
-a quad half lit, or a lit dark square lighter than a shaded light one), goes to the edge-line fit
-directly and is judged by its half-edges instead (shadow renders 92 -> 81 missed, occluded renders 2
-fewer, no false positive more; also with two neighbours at a right angle: 12 fewer still, but a
-board's outline next to clutter took 2 false corners). When that adds
-nothing, completion also asks the image two positions beyond the frontier along rows and columns,
-where the four quads alternate in the board's sign at their centres (one box each, a cheap look
-before the strict test): a shadow's sharp edge along a line of corners darkens two quads of each,
-so that line fails the test, and the board past it was lost (stress shadow renders: 15 of 165
-missed corners over 60 renders found; 1440 renders of the other subsets unchanged); the line left
-between stays holes unless completion then fills it.
+is asked: where the image test, made as strict as the seed's (its evenness and uniformity on the log
+scale below), passes at the prediction, a saddle point is fitted there (ccdn.refine, within the same
+tolerance) and taken if it passes the ring test and the strict image test, with at least two of its
+quad pairs on the image (one pair alone, at the frame's edge, is what a board's outline shows too).
+Where the strict test fails but growth's plain one passes (one quad may be hidden: an occluder or
+the other board covers part of the corner's surroundings) at a position the board holds on two sides
+or more (LOOSE_NEIGHBOURS), the fit is taken if the plain test passes at it and its four half-edges
+each show LOOSE_EDGES of the strongest one's contrast on the log scale (on a board's outline one
+runs into the margin): with the prune change below, four stress samples' 1140 renders: 311 -> 292
+corners missed, 17 -> 15 false positives, the gains all in the occluded, two-boards and shadow
+subsets. This recovers the corners the network scored too low (shadowed, blurred, or first found on
+a downscaled frame); such corners get indices >= len(xy), in order of addition. A slope in the grey
+levels shifts a saddle fit's point by slope / contrast, so under a soft shadow, whose light falls
+off across a corner faster than the shaded squares differ, the fit found no saddle: where it fails
+at a prediction whose quads look like the board's in shade (lower contrast than the seed's, yet a
+larger share of the board's on the log scale than on the grey scale: shade multiplies grey levels, a
+board's outline against a mid-grey background loses both alike), it is fitted again on the log scale
+of grey, where the shade's factor is an offset and the squares keep the lit ones' contrast (stress
+shadow renders: 150 -> 109 of 3819 corners missed over 60 renders, those found 0.13 px off the truth
+(median); 1440 renders of the other subsets: 3 occluded corners more, no false positive more;
+without the log-scale share, a board's outline took a false corner). Where neither scale's fit finds
+a saddle (a shadow's blurred edge through the corner curves the grey levels more than a quadric
+holds), the corner is the crossing of its lattice lines fitted to its squares' edges on the log
+scale (ccdn.edges), taken where each of its four half-edges shows at least EVEN_EDGES of the
+strongest one's contrast (on a board's outline one runs into the margin: without this test a radial
+and a two-boards render took 2 false corners each): shadow renders 109 -> 92 missed, 1440 others
+unchanged; the ring test (x_like) does not judge such a crossing: the shadow's edge across the
+corner puts the ring's first harmonic above its second, on the log scale too (stress shadow renders,
+README sample: 21 -> 7 corners missed; held-out 8 either way; no false positive more). A prediction
+that fails the strict test itself, in a gap of the board (filled neighbours on both sides along its
+row or column) where its quads look like the board's in shade (a shadow's edge across the corner
+leaves a quad half lit, or a lit dark square lighter than a shaded light one), goes to the edge-line
+fit directly and is judged by its half-edges instead (shadow renders 92 -> 81 missed, occluded
+renders 2 fewer, no false positive more; also with two neighbours at a right angle: 12 fewer still,
+but a board's outline next to clutter took 2 false corners). When that adds nothing, completion also
+asks the image two positions beyond the frontier along rows and columns, where the four quads
+alternate in the board's sign at their centres (one box each, a cheap look before the strict test):
+a shadow's sharp edge along a line of corners darkens two quads of each, so that line fails the
+test, and the board past it was lost (stress shadow renders: 15 of 165 missed corners over 60
+renders found; 1440 renders of the other subsets unchanged); the line left between stays holes
+unless completion then fills it.
 
 Shade (complete=True): a board whose lightest quads differ across it by more than SHADE_SPREAD
 (ccdn.shade.light_spread: a shadow over part of it) is searched for again, from the same corners,
@@ -894,11 +891,9 @@ class _Grower:
                                      & (counts[1:-1] <= BRIDGE * beside))[0] + 1
                 seams = [line for line in bridges.tolist() if self._two_lattices(axis, line)]
                 if seams:
-                    line = seams[0]
-                    drop = np.zeros(len(counts), bool)
-                    drop[line] = True
-                    drop[:line] = counts[:line].sum() < counts[line + 1:].sum()
-                    drop[line + 1:] = ~drop[0]
+                    line, lines = seams[0], np.arange(len(counts))
+                    keep_before = counts[:line].sum() >= counts[line + 1:].sum()
+                    drop = lines >= line if keep_before else lines <= line
                     cut = np.broadcast_to(drop[:, None] if axis == 0 else drop[None, :], filled.shape)
                     self.idx[cut] = -1
                     self.pos[cut] = np.nan
@@ -1161,8 +1156,7 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     grower.unkink()
     grower.prune()
     grower.trim_outline()
-    if gray is not None:
-        grower.split_at_bridge()
+    grower.split_at_bridge()
     grid, idx = grower.cells()
     if len(idx) < MIN_CORNERS or (grid.max(0) - grid.min(0) + 1).min() < MIN_EXTENT:
         return None
