@@ -529,6 +529,15 @@ def test_the_strip_of_a_board_another_hides_is_a_board(seed, strip, monkeypatch)
     assert len(ccdn.Detector(threads=2).detect(scene.image).boards) == 1
 
 
+def _true_board(board, scene, within: float) -> bool:
+    """Whether a found board's corners lie on one true board of the render, indexed as it is (one
+    rotation and offset), each within `within` px of its label (the nearest one)."""
+    distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+    label = distance.argmin(1)
+    return (len(set(scene.board_index[label])) == 1 and index_map(board, scene.grid[label]) is not None
+            and distance.min(1).max() < within)
+
+
 def test_a_board_behind_another_seeds_where_two_corners_of_each_square_are_covered(monkeypatch):
     """What shows of the back board in the stress set's two-boards render 7120041 is an L: the front
     board's outline crosses the quads of two corners of every square of it left, and seed squares
@@ -539,20 +548,9 @@ def test_a_board_behind_another_seeds_where_two_corners_of_each_square_are_cover
     scene = stress_scene("two-boards", 7_120_041)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert [len(board) for board in boards] == [49, 12]
-    back = boards[1]
-    label = np.linalg.norm(back.xy[:, None] - scene.corners[None], axis=2).argmin(1)
-    assert len(set(scene.board_index[label])) == 1 and index_map(back, scene.grid[label]) is not None
-    assert nearest_distances(scene.corners, back.xy).max() < 1.5
+    assert _true_board(boards[1], scene, 1.5)
     monkeypatch.setattr("ccdn.grid.BEHIND_UNEVEN", 1)  # the last round as lenient as the full frame's second
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [49]
-
-
-def _true_board(board, scene, within: float) -> bool:
-    """Whether a found board's corners lie on one true board of the render, indexed as it is (one
-    rotation and offset), each within `within` px of its label."""
-    label = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2).argmin(1)
-    return (len(set(scene.board_index[label])) == 1 and index_map(board, scene.grid[label]) is not None
-            and nearest_distances(board.xy, scene.corners[label]).max() < within)
 
 
 def test_two_boards_grown_into_one_through_their_seam_are_split_at_it(monkeypatch):

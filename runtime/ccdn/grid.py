@@ -68,7 +68,7 @@ Where the strict test fails but growth's plain one passes (one quad may be hidde
 the other board covers part of the corner's surroundings) at a position the board holds on two sides
 or more (LOOSE_NEIGHBOURS), the fit is taken if the plain test passes at it and its four half-edges
 each show LOOSE_EDGES of the strongest one's contrast on the log scale (on a board's outline one
-runs into the margin): with the prune change below, four stress samples' 1140 renders: 311 -> 292
+runs into the margin): with the prune change above, four stress samples' 1140 renders: 311 -> 292
 corners missed, 17 -> 15 false positives, the gains all in the occluded, two-boards and shadow
 subsets. This recovers the corners the network scored too low (shadowed, blurred, or first found on
 a downscaled frame); such corners get indices >= len(xy), in order of addition. A slope in the grey
@@ -492,9 +492,9 @@ class _Grower:
         if len(ok) == 0:
             return none, none
         candidate = free[nearest]  # each cell's nearest free corner
-        gaps = self.gaps[candidate[ok]] / _shorter(u[ok], v[ok])
-        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok], crowded=gaps < CROWDED,
-                              dense=gaps < DENSE)]
+        gap = self.gaps[candidate[ok]] / _shorter(u[ok], v[ok])  # to the candidate's nearest corner, in steps
+        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok], crowded=gap < CROWDED,
+                              dense=gap < DENSE)]
         if local:
             ok = ok[self._straight(cells[ok], self.xy[candidate[ok]])]
         ok = ok[np.argsort(dist[ok], kind="stable")]
@@ -619,7 +619,7 @@ class _Grower:
             good[again] = self._accepts(cells[again], points[again], u[again], v[again], True, COMPLETION_MIN_PAIRS,
                                         near=True)
         if (even := good & loose).any():
-            good[even] = self._even_edges(points[even], u[even], v[even]) & self._accepts(
+            good[even] = self._even_edges(points[even], u[even], v[even], LOOSE_EDGES) & self._accepts(
                 cells[even], points[even], u[even], v[even])
         good[good] &= self._straight(cells[good], points[good])
         taken = np.concatenate([self.pos[self.idx >= 0], self.occupied])  # a corner belongs to one board
@@ -637,11 +637,12 @@ class _Grower:
         self._place(cells[keep] - self.origin, np.arange(first, first + len(keep)))
         return True
 
-    def _even_edges(self, points: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    def _even_edges(self, points: np.ndarray, u: np.ndarray, v: np.ndarray, share: float) -> np.ndarray:
         """(K,) whether the four half-edges of corners at points (steps u, v) each show at least
-        LOOSE_EDGES of the strongest one's contrast on the log scale (ccdn.edges.half_edge_contrast)."""
+        `share` of the strongest one's contrast on the log scale (ccdn.edges.half_edge_contrast): on a
+        board's outline one runs into the margin."""
         contrast = half_edge_contrast(self._log_gray(), points, np.stack([u, -u, v, -v], 1))
-        return contrast.min(1) >= LOOSE_EDGES * contrast.max(1)  # NaN (off the image): not
+        return contrast.min(1) >= share * contrast.max(1)  # NaN (off the image): not
 
     def _in_shade(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(K,) whether the quads around points (canvas cells, steps u, v) look like the board's in
@@ -684,10 +685,8 @@ class _Grower:
         on the log scale (ccdn.edges), from predictions preds (K, 2) with steps u, v: (K, 2) points
         and whether each is a corner there, its four half-edges each at least EVEN_EDGES of the
         strongest one's contrast (on a board's outline, one runs into the margin)."""
-        steps, log_gray = np.stack([u, -u, v, -v], 1), self._log_gray()
-        points, moved = refine_on_edges(log_gray, preds, steps)
-        contrast = half_edge_contrast(log_gray, points, steps)
-        return points, moved & (contrast.min(1) >= EVEN_EDGES * contrast.max(1))  # NaN (off the image): not
+        points, moved = refine_on_edges(self._log_gray(), preds, np.stack([u, -u, v, -v], 1))
+        return points, moved & self._even_edges(points, u, v, EVEN_EDGES)
 
     def _log_gray(self) -> np.ndarray:
         """The frame's grey levels on the log scale (_LOG_GREY), made at the first call."""
@@ -843,9 +842,7 @@ class _Grower:
         ok = np.isfinite(u).all(1) & np.isfinite(v).all(1)
         ok &= linked[cells[:, 0]].any(1) & linked[:, cells[:, 1]].any(0)
         if ok.any():
-            steps = np.stack([u[ok], -u[ok], v[ok], -v[ok]], 1)
-            contrast = half_edge_contrast(self._log_gray(), points[ok], steps)
-            ok[ok] = contrast.min(1) >= HIDDEN_EDGES * contrast.max(1)  # NaN (off the image): not
+            ok[ok] = self._even_edges(points[ok], u[ok], v[ok], HIDDEN_EDGES)
         return ok
 
     def trim_outline(self) -> None:
@@ -889,9 +886,9 @@ class _Grower:
                 beside = np.minimum(counts[:-2], counts[2:])
                 bridges = np.nonzero((counts[1:-1] > 0) & (beside >= MIN_BRIDGED)
                                      & (counts[1:-1] <= BRIDGE * beside))[0] + 1
-                seams = [line for line in bridges.tolist() if self._two_lattices(axis, line)]
-                if seams:
-                    line, lines = seams[0], np.arange(len(counts))
+                line = next((line for line in bridges.tolist() if self._two_lattices(axis, line)), None)
+                if line is not None:
+                    lines = np.arange(len(counts))
                     keep_before = counts[:line].sum() >= counts[line + 1:].sum()
                     drop = lines >= line if keep_before else lines <= line
                     cut = np.broadcast_to(drop[:, None] if axis == 0 else drop[None, :], filled.shape)
