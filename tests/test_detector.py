@@ -453,8 +453,10 @@ def test_a_gap_on_a_shadows_edge_is_filled_from_its_edge_lines(monkeypatch):
     corners, measured). Where the board holds a prediction's neighbours on both sides and its quads
     look like the board's in shade, the edge-line fit is asked directly (ccdn.grid._on_shadows_edge):
     77 now, every one a true corner (with `fast` 1.1.0 on the halved frame: 75 without that fit; the
-    search on the levelled frame, which this board's shadow also calls for, is left out here)."""
+    search on the levelled frame, which this board's shadow also calls for, is left out here, and so is
+    the network vouching for corners: _Grower.vouch took one of them without that fit)."""
     monkeypatch.setattr("ccdn.grid.SHADE_SPREAD", np.inf)
+    monkeypatch.setattr("ccdn.grid.VOUCH_SCORE", np.inf)
     scene = stress_scene("shadow", 7_160_033)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 81 and len(found.boards) == 1
