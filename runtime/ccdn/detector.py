@@ -223,9 +223,11 @@ class Detector:
         return score, xy, values, gaps
 
     def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, score: np.ndarray, xy: np.ndarray,
-                 values: np.ndarray, gaps: np.ndarray, boards: bool, board_size, clock: _Clock):
+                 values: np.ndarray, gaps: np.ndarray, boards: bool, board_size, clock: _Clock,
+                 shade_unfound: bool = False):
         """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `gaps`: theirs, in
-        frame pixels) refined on gray, then the boards they form."""
+        frame pixels) refined on gray, then the boards they form (shade_unfound: ccdn.grid.find_boards';
+        the full frame's pass asks for it: where it finds no board, no finer pass follows)."""
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
         radius = window_for_spacing(median(gaps) * scale)
         if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
@@ -240,7 +242,7 @@ class Detector:
         if self.filter == "grid" or boards or board_size is not None:
             complete = self.filter == "grid"
             found = find_boards(gray, refined, values, board_size, complete=complete,
-                                uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0)
+                                uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0, shade_unfound=shade_unfound)
             if complete:
                 refined, values = _with_completed(refined, values, found, score, scale)
             if complete or board_size is not None:
@@ -253,7 +255,8 @@ class Detector:
         """The full-frame pass (the network only inside `boxes` when given: ccdn.regions), with the
         magnified look at its thin boards: (xy, values, boards, its score peaks)."""
         score, peaks, values, gaps = self._peaks(self._session, gray, clock, boxes)
-        xy, values, found = self._corners(gray, gray, 1, score, peaks, values, gaps, boards, board_size, clock)
+        xy, values, found = self._corners(gray, gray, 1, score, peaks, values, gaps, boards, board_size, clock,
+                                          shade_unfound=True)
         if self._saddle_boards:
             xy, values, found = self._magnified(gray, thin_region(found, gray.shape), xy, values, found, boards,
                                                 board_size, clock)

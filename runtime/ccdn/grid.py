@@ -119,8 +119,13 @@ grey evens that out), pass the image tests; the second search's boards are kept 
 more corners (stress shadow renders: 190 -> 96 of 6427 corners missed over 100 renders, all found
 0.060 -> 0.065 px off the truth (mean), the 99 new ones 0.41 px, until ccdn.detector fitted the
 corners across a shadow's edge again on the levelled frame: 0.044 px; 1440 renders of the other
-subsets and real-dev unchanged; also asked where no board was found, it found one more board of 40
-shadow renders and cost a boardless cluttered frame a quarter more time).
+subsets and real-dev unchanged). With shade_unfound (the detector's full-frame pass), where no board
+is found and at least MIN_CORNERS corner-like points (ccdn.checker.x_like) are lit more unevenly
+than SHADE_SPREAD (ccdn.shade.points_light_spread), the search runs on the levelled frame too, their
+median gap taken for the square: a shadow's edge across a small board crosses a quad of every seed
+square's corners (1280 cached stress renders: 3 such boards of 12-20 corners, 48 corners more, no
+false positive more; asked on every pass and every frame before, it cost a boardless frame a
+quarter more time; now 6-13 %, and nothing where a board is found).
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
 level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
@@ -177,7 +182,7 @@ from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differen
                       quad_means, quad_spread, x_like)
 from .edges import half_edge_contrast, lattice_steps, median_step, refine_on_edges
 from .refine import refine_saddle_points, window_for_spacing
-from .shade import levelled, light_levels, light_spread
+from .shade import levelled, light_levels, light_spread, points_light_spread
 from .stats import median, nanmedian_rows, vector_lengths
 
 MIN_CORNERS = 8
@@ -1276,7 +1281,8 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size: tuple[int, int] | None = None,
-                *, allow_partial: bool = False, complete: bool = False, uneven_seeds: int = 0) -> tuple[Board, ...]:
+                *, allow_partial: bool = False, complete: bool = False, uneven_seeds: int = 0,
+                shade_unfound: bool = False) -> tuple[Board, ...]:
     """Link corners into checkerboards: the boards found, largest first (ties: top, then left).
 
     gray: (H, W) uint8 image the corners come from. xy: (N, 2) corner positions (x, y), (0, 0) the
@@ -1287,7 +1293,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     orientation of the indices. complete: also take corners the image shows where the grid predicts
     one that xy lacks (module docstring); their corner_index is >= len(xy), their position in Board.xy.
     uneven_seeds: how many corners of a seed square may have non-uniform quads (0 or 1) before the last round
-    (module docstring).
+    (module docstring). shade_unfound (with complete): where no board is found, also search the
+    levelled frame when the corner-like points lie in uneven light (module docstring, Shade).
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
@@ -1302,7 +1309,12 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     gaps = np.sqrt(dist2[:, 0])
     sampler = Sampler(gray)
     boards = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete, uneven_seeds)
-    if complete and (square := _shaded_square(gray, sampler, boards)) is not None:
+    square = None
+    if complete and boards:
+        square = _shaded_square(gray, sampler, boards)
+    elif complete and shade_unfound:
+        square = _unlit_square(gray, xy, gaps)
+    if square is not None:
         # a board under a shadow: the search again on the frame with its light levelled (ccdn.shade), kept
         # where it finds more corners
         flat = levelled(gray, square)
@@ -1321,6 +1333,17 @@ def _shaded_square(gray: np.ndarray, sampler: Sampler, boards: tuple[Board, ...]
         if light_spread(light_levels(gray, board.xy.astype(np.float64), steps, sampler)) > SHADE_SPREAD:
             return median_step(steps)
     return None
+
+
+def _unlit_square(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray) -> float | None:
+    """The median gap (px) of the corner-like points (ccdn.checker.x_like) among corners xy with
+    their `gaps`, where at least MIN_CORNERS of them are lit more unevenly than SHADE_SPREAD
+    (ccdn.shade.points_light_spread); None otherwise."""
+    corner_like = x_like(gray, xy, gaps)
+    if corner_like.sum() < MIN_CORNERS:
+        return None
+    square = float(median(gaps[corner_like]))
+    return square if points_light_spread(gray, xy[corner_like], square) > SHADE_SPREAD else None
 
 
 def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarray, neighbours: np.ndarray,
