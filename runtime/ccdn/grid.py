@@ -48,11 +48,12 @@ the other: the 300 occluded, two-boards and shadow renders of four stress sample
 board holds on two sides or more (_Grower.vouch): a free corner within VOUCH_REACH (0.05) of the
 shorter step of the grid's prediction, scored at least VOUCH_SCORE (0.5) x the board's median, joins
 without the image test. Where an occluder or the other board covers part of a corner's quads every
-image test fails, while the network, trained on such corners, still finds it (1140 stress renders:
-three samples of 340 and 120 fresh occluded, two-boards and shadow ones: 293 -> 277 corners missed,
-no false positive more; the 16 lie 0.01-0.34 px off the truth but one, 1.4 px, in a penumbra. Within
-0.15 of a step: 26 more, but 8 lay 1-3.7 px off, pulled by an occluder's edge 1-3 px away; before
-prune, an outline point growth took lent a position its second side: 7 false positives).
+image test fails, while the network, trained on renders with occluders, still finds it (1300 cached
+renders: three samples of 340 and 280 fresh occluded, two-boards, shadow and partial ones: 25
+corners more, no false positive more, each 0.01-0.34 px off the truth but one, 1.4 px, in a
+penumbra. Within 0.15 of a step: 5 more on the 1140 looked at first, but 8 of those it took lay
+1-3.7 px off, pulled by an occluder's edge 1-3 px away; before prune, an outline point growth took
+lent a position its second side: 7 false positives).
 An outermost row or column that is a stub of the line inside it (at most 0.3 of its length) is
 dropped too, unless the frame cuts it (clutter continuing the pattern beyond an edge). An inner row
 or column that holds at most BRIDGE of the corners of each line beside it, where those three lines
@@ -123,9 +124,9 @@ subsets and real-dev unchanged). With shade_unfound (the detector's full-frame p
 is found and at least MIN_CORNERS corner-like points (ccdn.checker.x_like) are lit more unevenly
 than SHADE_SPREAD (ccdn.shade.points_light_spread), the search runs on the levelled frame too, their
 median gap taken for the square: a shadow's edge across a small board crosses a quad of every seed
-square's corners (1280 cached stress renders: 3 such boards of 12-20 corners, 48 corners more, no
-false positive more; asked on every pass and every frame before, it cost a boardless frame a
-quarter more time; now 6-13 %, and nothing where a board is found).
+square's corners (1300 cached stress renders: 3 such boards of 12-20 corners, 48 corners more, no
+false positive more; asked on every pass where no board was found before, it cost a boardless
+frame a quarter more time; now 6-13 %, and nothing where a board is found).
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
 level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
