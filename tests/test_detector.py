@@ -249,13 +249,15 @@ def test_a_board_whose_squares_thin_too_much_on_the_halved_frame_gets_the_full_r
     """The stress set's fisheye render 7010145: the halved frame's squares are big at the board's
     middle and a few px across at its rim, where `fast` cannot follow them; kept, that pass found 61
     of the 77 corners (67 since completion's loose fits, session 38). Its thinnest squares under
-    THIN_SQUARE send the frame on: all 77."""
+    THIN_SQUARE send the frame on: 76 (all 77 before session 39 refused the second chance to crowded
+    corners whose wide-sampled quads are mixed, ccdn.grid.CROWDED: a rim corner 8 px from the next),
+    every one a true corner."""
     from ccdn import detector as detector_module
 
     scene = stress_scene("fisheye", 7_010_145)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 77 and len(found.boards) == 1
-    assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() == 77
+    assert len(found) == 76 and (nearest_distances(found.xy, scene.corners) < 1.5).sum() == 76
     monkeypatch.setattr(detector_module, "THIN_SQUARE", 0.0)
     detector = ccdn.Detector(threads=2)
     shapes = _network_frames(detector)

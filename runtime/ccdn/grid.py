@@ -149,9 +149,12 @@ pass and the four quads alternate close to the corner, sampled 0.36 of the way t
 with the strict test's even contrast and uniform quads (on the stress benchmark's renders and as
 many held-out ones, 640 in all: 22 of 531 misses fewer, all occluded or behind another board, no
 false positive more; also giving it to completion's corners found 5 more and added 2 false
-positives, on a board's outline next to another board). A corner with another within DENSE of the
-shorter step gets none: a denser lattice's corner, of a smaller board lying on this one, passes it
-around itself (fresh stress renders: a board took 4 such corners next to its own hidden ones).
+positives, on a board's outline next to another board). A crowded corner whose wide-sampled quads
+are not uniform gets none either: a denser lattice's corner, of a smaller board lying on this one,
+passes it around itself (fresh stress renders: a board took 4 such corners next to its own hidden
+ones; 3 wrongly indexed boards in 1300 cached renders, 0.37-0.53 of a step from their neighbours,
+1 now; before, points within 0.5 of a step got none, a rule this one makes redundant: the same
+corners without it, but for one render's, moved).
 
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
@@ -221,10 +224,6 @@ SHADE_OFFSET = 8.0  # grey levels: PAIR_RATIO and the strict test's evenness and
 # noise floor, below which the log would magnify noise (measured 3 / 8 / 20: the same within 5 corners of 3800)
 WIDE_SPREAD = 1.5  # growth's image test: quads sampled as widely as a seed's vary by at most this x their contrast ...
 CROWDED = 0.75  # ... at a corner with another this close (x the shorter lattice step): other corners in its cells
-DENSE = 0.5  # a corner with another this close gets no second chance from growth's image test: where a smaller
-# board lies on a larger one, its corners near the larger one's hidden ones passed it around themselves (fresh
-# stress two-boards render 7121346: 4 of them in the larger board, 1 now; 1140 cached renders: 3 false positives
-# fewer, 1 corner more missed; 0.75: 6 more missed)
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
 BRIDGE = 0.4  # an inner line this short against both lines beside it joins two boards (_Grower.split_at_bridge) ...
 MIN_BRIDGED = 4  # ... where each of those holds this many corners ...
@@ -416,16 +415,16 @@ class _Grower:
 
     def _accepts(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray,
                  strict: bool = False, min_pairs: int = 1, crowded: np.ndarray | None = None,
-                 near: bool = False, dense: np.ndarray | None = None) -> np.ndarray:
+                 near: bool = False) -> np.ndarray:
         """The image test (K,) at points for canvas cells with lattice steps u, v (quads off the
         image are not counted; steps flatter than a seed's fail: MIN_SINE); strict (for corners the
         network did not propose): also the seed's test of even contrast and uniform quads (here on
         the log scale: _alternate), which points on a board's outline next to clutter fail, with at
         least min_pairs of the 4 quad pairs on the image; without it, a point that fails gets the
         module docstring's second chance, and the crowded points ((K,) bool; none when not given)
-        must have quads uniform where a seed's are sampled (WIDE_SPREAD) to pass without it, and the
-        dense ones ((K,) bool) get no second chance: a corner of a denser lattice (a smaller board in
-        front of this one) passes it around itself.
+        must have quads uniform where a seed's are sampled (WIDE_SPREAD) to pass with or without it:
+        a corner of a denser lattice (a smaller board in front of this one) passes the second chance
+        around itself.
         near (strict only): the strict test also passes where it does on quads sampled NEAR_QUADS
         of the way to their centres, for a corner in other light than the seed's (SHADED_CONTRAST)."""
         sign = self._signs(cells)
@@ -447,15 +446,17 @@ class _Grower:
                              np.concatenate([v, NEAR_QUADS * v]))
         far = tuple(part[:, :k] for part in levels)
         plain = self._alternate(far, sign, False)
-        # crowded points: quads uniform where a seed's are sampled (a NaN contrast does not refuse)
-        if crowded is not None and (wide := plain & crowded).any():
-            wide_diffs, wide_spread = quad_differences(self.sampler, points[wide], u[wide], v[wide], SEED_REACH_UNIFORM,
-                                                       SEED_AXES)
-            plain[wide] = ~(wide_spread > WIDE_SPREAD * np.abs(nanmedian_rows(wide_diffs)))
+        # crowded points: quads uniform where a seed's are sampled (a NaN contrast does not refuse), or no pass
+        # and no second chance either: the second chance passes a corner of a denser lattice around itself
+        mixed = np.zeros(k, bool)
+        if crowded is not None and crowded.any():
+            wide_diffs, wide_spread = quad_differences(self.sampler, points[crowded], u[crowded], v[crowded],
+                                                       SEED_REACH_UNIFORM, SEED_AXES)
+            mixed[crowded] = wide_spread > WIDE_SPREAD * np.abs(nanmedian_rows(wide_diffs))
+            plain &= ~mixed
         far_diffs = pair_differences(far[0]) * sign[:, None]
-        retry = ~plain & (np.fmin.reduce(far_diffs[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
-        if dense is not None:
-            retry &= ~dense
+        three = (np.fmin.reduce(far_diffs[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
+        retry = ~plain & ~mixed & three
         if retry.any():  # the second chance, for the points with three quads that failed the plain test
             near = tuple(part[:, k:][:, retry] for part in levels)
             plain[retry] = self._alternate(near, sign[retry], True)
@@ -513,8 +514,7 @@ class _Grower:
             return none, none
         candidate = free[nearest]  # each cell's nearest free corner
         gap = self.gaps[candidate[ok]] / _shorter(u[ok], v[ok])  # to the candidate's nearest corner, in steps
-        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok], crowded=gap < CROWDED,
-                              dense=gap < DENSE)]
+        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok], crowded=gap < CROWDED)]
         if local:
             ok = ok[self._straight(cells[ok], self.xy[candidate[ok]])]
         ok = ok[np.argsort(dist[ok], kind="stable")]
