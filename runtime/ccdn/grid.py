@@ -126,7 +126,7 @@ than SHADE_SPREAD (ccdn.shade.points_light_spread), the search runs on the level
 median gap taken for the square: a shadow's edge across a small board crosses a quad of every seed
 square's corners (1300 cached stress renders: 3 such boards of 12-20 corners, 48 corners more, no
 false positive more; asked on every pass where no board was found before, it cost a boardless
-frame a quarter more time; now 6-13 %, and nothing where a board is found).
+frame a quarter more time; now 4-14 %, and nothing where a board is found).
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
 level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
