@@ -503,23 +503,28 @@ class _Grower:
         local predictions (not a homography's), keep the grid's lines straight: which cells (indices
         into cells) and their corners."""
         none = np.zeros(0, np.int64)
-        free = np.nonzero(self.free)[0]
-        if len(free) == 0 or len(cells) == 0:
+        if len(cells) == 0 or (nearest := self._nearest_free(preds)) is None:
             return none, none
-        d = _distances(preds, self.xy[free])
-        nearest = d.argmin(1)
-        dist = d[np.arange(len(cells)), nearest]
+        candidate, dist = nearest
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
         if len(ok) == 0:
             return none, none
-        candidate = free[nearest]  # each cell's nearest free corner
-        gap = self.gaps[candidate[ok]] / _shorter(u[ok], v[ok])  # to the candidate's nearest corner, in steps
-        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok], crowded=gap < CROWDED)]
+        crowded = self.gaps[candidate[ok]] < CROWDED * _shorter(u[ok], v[ok])
+        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok], crowded=crowded)]
         if local:
             ok = ok[self._straight(cells[ok], self.xy[candidate[ok]])]
-        ok = ok[np.argsort(dist[ok], kind="stable")]
-        ok = ok[np.unique(nearest[ok], return_index=True)[1]]  # a corner goes to its nearest cell
+        ok = _nearest_cell_wins(ok, dist, candidate)
         return ok, candidate[ok]
+
+    def _nearest_free(self, preds: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Each prediction's (K, 2) nearest free corner and its distance: (corners (K,), distances
+        (K,)); None when no corner is free."""
+        free = np.nonzero(self.free)[0]
+        if len(free) == 0:
+            return None
+        d = _distances(preds, self.xy[free])
+        nearest = d.argmin(1)
+        return free[nearest], d[np.arange(len(preds)), nearest]
 
     def _take(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray, u: np.ndarray,
               v: np.ndarray) -> np.ndarray:
@@ -758,29 +763,22 @@ class _Grower:
             return
         filled = self.idx >= 0
         cells = np.argwhere((_row_col_neighbours(filled) >= LOOSE_NEIGHBOURS) & ~filled)
-        free = np.nonzero(self.free)[0]
         own = self.idx[filled]
         own = own[own < len(self.xy)]  # the given corners: completion's have no score
-        if len(cells) == 0 or len(free) == 0 or len(own) == 0:
+        if len(cells) == 0 or len(own) == 0:
             return
         preds, tol, u, v = self._support(cells)
-        ok = np.nonzero(np.isfinite(tol) & _square_enough(u, v))[0]
-        if len(ok) == 0:
+        ok = np.isfinite(tol) & _square_enough(u, v)
+        cells, preds, tol = cells[ok], preds[ok], tol[ok]
+        if len(cells) == 0 or (nearest := self._nearest_free(preds)) is None:
             return
-        d = _distances(preds[ok], self.xy[free])
-        nearest = d.argmin(1)
-        dist = d[np.arange(len(ok)), nearest]
-        candidate = free[nearest]
-        typical = median(self.score[own])
+        candidate, dist = nearest
         # tol / TOLERANCE: the shorter local step (or SLIVER_REACH x the cell's lesser height, where less)
-        near = (dist < VOUCH_REACH * tol[ok] / TOLERANCE) & (self.score[candidate] >= VOUCH_SCORE * typical)
-        if near.any():
-            near[near] = self._straight(cells[ok[near]], self.xy[candidate[near]])
-        take = np.nonzero(near)[0]
-        take = take[np.argsort(dist[take], kind="stable")]
-        take = take[np.unique(nearest[take], return_index=True)[1]]  # a corner goes to its nearest cell
+        near = (dist < VOUCH_REACH * tol / TOLERANCE) & (self.score[candidate] >= VOUCH_SCORE * median(self.score[own]))
+        near[near] = self._straight(cells[near], self.xy[candidate[near]])
+        take = _nearest_cell_wins(np.nonzero(near)[0], dist, candidate)
         if len(take):
-            self._place(cells[ok[take]] - self.origin, candidate[take])
+            self._place(cells[take] - self.origin, candidate[take])
 
     def _jump_holes(self, targets: np.ndarray, support: tuple[np.ndarray, ...]) -> bool:
         """Take free corners at the positions beyond the frontier (_beyond): across a one-corner hole."""
@@ -995,6 +993,13 @@ def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     dy *= dy
     dx += dy
     return np.sqrt(dx, out=dx)
+
+
+def _nearest_cell_wins(ok: np.ndarray, dist: np.ndarray, corner: np.ndarray) -> np.ndarray:
+    """The cells `ok` (indices) that keep their corner (corner (K,), at dist (K,)): one cell per
+    corner, the nearest winning a contested one."""
+    ok = ok[np.argsort(dist[ok], kind="stable")]
+    return ok[np.unique(corner[ok], return_index=True)[1]]
 
 
 def _first_of_each_cell(cells: np.ndarray, width: int) -> np.ndarray:
