@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ccdn.checker import Sampler
-from ccdn.grid import Board, _Grower, find_boards, nearest_neighbours
+from ccdn.grid import Board, _Grower, find_boards, hole_cells, nearest_neighbours
 from conftest import calm_scene, index_map, nearest_distances, stress_scene
 
 synth = pytest.importorskip("ccdn_training.synth")
@@ -111,6 +111,22 @@ def test_missing_corners_leave_holes_not_broken_boards(hole):
     (board,) = find_boards(scene.image, scene.corners[keep], np.ones(len(keep)), board_size=(9, 6))
     assert len(board) == len(keep)
     assert index_map(board, scene.grid[keep][board.corner_index]) is not None
+
+
+ROW_1 = [(1, 0), (1, 1), (1, 2), (1, 3)]
+
+
+@pytest.mark.parametrize("missing, holes", [([(1, 1)], [(1, 1)]), ([(0, 1), (2, 2)], [(0, 1), (2, 2)]),
+                                             ([(0, 0), (2, 3)], []), (ROW_1, ROW_1)])
+def test_hole_cells_are_the_missing_corners_with_board_corners_on_both_sides(missing, holes):
+    """A corner missing between two of the board's along its row or its column is a hole, one at
+    an outline's end (where a board may simply end, or the frame cut it) is not; a whole line missing
+    between two is holes."""
+    rows, cols = np.mgrid[0:3, 0:4]
+    grid = np.stack([rows.ravel(), cols.ravel()], 1)
+    grid = grid[[tuple(cell) not in missing for cell in grid.tolist()]].astype(np.int32)
+    board = Board(np.arange(len(grid)), grid, grid[:, ::-1].astype(np.float32) * 20, 4, 3)
+    assert hole_cells(board).tolist() == [list(cell) for cell in holes]
 
 
 def test_completion_recovers_corners_missing_from_the_input_at_their_true_position():
@@ -612,12 +628,13 @@ def test_a_corner_kept_where_an_occluder_hides_its_neighbours_links_its_line_in_
     half-edges are even: ccdn.grid._Grower._hidden_around) and dropped the last, whose column holds
     none; the middle one then had one neighbour, and the next round dropped both: each one's row
     held only the other, neither counted as linked. A kept corner counts as linked in later rounds:
-    24 of the 27 corners, one board, indexed as it is (22 before)."""
+    24 of the 27 corners, one board, indexed as it is (22 before); 25 since the halved frame's
+    holes are looked at with the full-resolution network (ccdn.holes: its fit 0.18 px off)."""
     import ccdn
     scene = stress_scene("occluded", 7_140_830)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
-    assert [len(board) for board in boards] == [24]
-    assert _true_board(boards[0], scene, 0.1)
+    assert [len(board) for board in boards] == [25]
+    assert _true_board(boards[0], scene, 0.2)
 
 
 def test_a_crowded_corner_whose_wide_quads_are_mixed_gets_no_second_chance(monkeypatch):

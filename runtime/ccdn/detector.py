@@ -12,7 +12,9 @@ that leaves its shorter side >= COARSE_MIN_SIDE (640x480: halved; 2000x1500: 8x,
 When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass finds boards whose
 squares are that big on the shrunk frame (DEEP_MIN_SQUARE on frames shrunk 4x or more; on the
 halved frame none of them thinner than THIN_SQUARE, as a fisheye board's rim can be), their
-corners are refined on the full-resolution image and the finer passes are skipped; otherwise the
+corners are refined on the full-resolution image and the finer passes are skipped (the holes such a
+pass leaves inside a board, where an occluder's or a shadow's edge hid corners from the shrunk
+frame, are looked at with the full-resolution network: ccdn.holes); otherwise the
 next finer pass runs, down to the full frame, which is scored only inside boxes around what the
 finest shrunk pass responded to (ccdn.regions: a frame with nothing there costs no full-resolution
 network). Small squares and frames without a board therefore pay for the shrunk passes, and a
@@ -42,6 +44,7 @@ import numpy as np
 
 from .edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
 from .grid import SHADE_SPREAD, Board, find_boards, nearest_neighbours
+from .holes import filled_holes, hole_boxes, predicted_holes, with_corners
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region, thinnest
 from .models import default_coarse_model
@@ -197,7 +200,8 @@ class Detector:
         map), xy, values and boards None when the squares are too small to trust there (judged first
         on the peaks, before any refinement, then on the corners found, their gaps and, on the halved
         frame, their boards' thinnest squares, before their edge-line refinement, which a pass left to
-        a finer one would waste: with any_squares, only on the peaks) or no board is found."""
+        a finer one would waste: with any_squares, only on the peaks) or no board is found. The holes
+        a kept pass leaves inside its boards are filled from the full-resolution network (_filled_holes)."""
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
@@ -206,6 +210,8 @@ class Detector:
         xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
         if len(xy) < 9 or (not any_squares and _too_small(xy, found, scale)):
             return None, None, None, score
+        if not self.fast_check and self._saddle_boards:
+            xy, values, found = self._filled_holes(gray, xy, values, found, clock)
         return xy, values, found, score
 
     def _peaks(self, session: ScoreSession, frame: np.ndarray, clock: _Clock,
@@ -249,6 +255,27 @@ class Detector:
                 refined, values, found = _keep_board_corners(refined, values, found)
             clock.lap("boards")
         return refined, values, found
+
+    def _filled_holes(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
+                      clock: _Clock):
+        """xy, values and boards with the holes a shrunk pass left inside its boards filled from the
+        full-resolution network's peaks, scored only around them (ccdn.holes)."""
+        holes = [predicted_holes(board) for board in found]
+        boxes = [box for _, preds, steps in holes for box in hole_boxes(preds, steps, gray.shape)]
+        if not boxes:
+            return xy, values, found
+        score = self._session.scores_in(gray, boxes)
+        clock.lap("network")
+        boards = []
+        for board, (cells, preds, steps) in zip(found, holes):
+            if len(cells):
+                cells, points, scores = filled_holes(gray, board, cells, preds, steps, score, xy)
+                board = with_corners(board, cells, points, len(xy))
+                xy, values = np.concatenate([xy, points]), np.concatenate([values, scores])
+            boards.append(board)
+        xy, values, found = _keep_board_corners(xy, values, tuple(boards))
+        clock.lap("boards")
+        return xy, values, found
 
     def _full_frame(self, gray: np.ndarray, boxes: list[tuple[int, int, int, int]] | None, boards: bool,
                     board_size, clock: _Clock):

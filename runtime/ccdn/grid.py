@@ -298,6 +298,16 @@ class Board:
                 "grid": self.grid.tolist()}
 
 
+def hole_cells(board: Board) -> np.ndarray:
+    """(K, 2) (row, col) of the board's missing corners that have its corners on both sides along
+    their row or column: corners lost inside the board (under an occluder's or a shadow's edge, or
+    seen too coarsely), not beyond its outline, where a board simply ends."""
+    filled = np.zeros((board.rows + 2, board.cols + 2), bool)
+    filled[board.grid[:, 0] + 1, board.grid[:, 1] + 1] = True
+    between = (filled[:-2, 1:-1] & filled[2:, 1:-1]) | (filled[1:-1, :-2] & filled[1:-1, 2:])
+    return np.argwhere(between & ~filled[1:-1, 1:-1])
+
+
 def largest_first(boards) -> list[Board]:
     """Boards ordered largest first; ties: top, then left (their corners' mean position)."""
     return sorted(boards, key=lambda b: (-len(b), float(b.xy[:, 1].mean()), float(b.xy[:, 0].mean())))

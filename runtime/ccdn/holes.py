@@ -1,0 +1,129 @@
+"""Holes a shrunk pass leaves inside a board, filled from the full-resolution network's peaks.
+
+Where an occluder's or a shadow's edge runs along a board's corners, the network on the shrunk
+frame often misses them while it finds the board: a hole between the board's corners along a row
+or a column (ccdn.grid.hole_cells), at a position the image tests of ccdn.grid fail, since
+something covers part of its quads. The full-resolution network still peaks on most of them
+(measured on the 1300 cached stress renders: of the 69 such corners the occluded, shadow and
+two-boards renders missed where the halved frame's pass found the board, 66 had a peak within
+1.5 px). Sending such frames on to the full-frame pass took them, but at its whole cost (the
+occluded renders' median time about tripled); here only a box around each hole is scored, and a
+hole takes the saddle fit of the box's best peak near the grid's prediction, like the grid's
+vouching (ccdn.grid._Grower.vouch): scored at least HOLE_SCORE x the median of the board's corners
+in the same boxes, and within HOLE_REACH of a step of the prediction, which an occluder's edge
+that pulls the fit off the corner leaves.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from .grid import Board, hole_cells
+from .refine import refine, window_for_spacing
+from .stats import median, vector_lengths
+
+HOLE_REACH = 0.05  # of the local step: the fit this far from the prediction at most (0.1 took a corner an
+# occluder's edge pulled 2.1 px off)
+HOLE_SCORE = 0.5  # x the median full-resolution score of the board's corners around the holes
+NEAR_CELLS = 2  # a hole's prediction: a homography fitted to the board's corners up to this many cells away
+
+
+def predicted_holes(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The board's holes (ccdn.grid.hole_cells): their (row, col) (K, 2), positions predicted by a
+    homography fitted to the board's corners up to NEAR_CELLS cells away (K, 2) and the shorter
+    of the predicted steps along their row and column (K,). Holes with fewer than 4 such corners,
+    or a degenerate fit, are left out."""
+    cells = hole_cells(board)
+    found_cells, preds, steps = [], [], []
+    for cell in cells:
+        near = (np.abs(board.grid - cell) <= NEAR_CELLS).all(1)
+        if near.sum() < 4:
+            continue
+        homography, _ = cv2.findHomography(board.grid[near][:, ::-1].astype(np.float64),
+                                           board.xy[near].astype(np.float64), 0)
+        if homography is None or abs(np.linalg.det(homography)) < 1e-12:
+            continue
+        at = np.array([[cell[::-1], cell[::-1] + (1, 0), cell[::-1] + (0, 1)]], np.float64)  # (col, row), like (x, y)
+        point, along_row, along_col = cv2.perspectiveTransform(at, homography)[0]
+        found_cells.append(cell)
+        preds.append(point)
+        steps.append(vector_lengths(np.stack([along_row - point, along_col - point])).min())
+    if not found_cells:
+        return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros(0)
+    return np.array(found_cells), np.array(preds), np.array(steps)
+
+
+def hole_boxes(preds: np.ndarray, steps: np.ndarray, shape: tuple[int, int]) -> list[tuple[int, int, int, int]]:
+    """Boxes (top, bottom, left, right) one step around each prediction: the hole and its neighbours,
+    whose scores are the reference (ccdn.session.ScoreSession.scores_in)."""
+    h, w = shape
+    reach = np.ceil(steps + 1).astype(np.int64)
+    x, y = np.rint(preds[:, 0]).astype(np.int64), np.rint(preds[:, 1]).astype(np.int64)
+    return [(int(max(b - r, 0)), int(min(b + r + 1, h)), int(max(a - r, 0)), int(min(a + r + 1, w)))
+            for a, b, r in zip(x, y, reach)]
+
+
+def filled_holes(gray: np.ndarray, board: Board, cells: np.ndarray, preds: np.ndarray, steps: np.ndarray,
+                 score: np.ndarray, taken: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The holes (cells, preds, steps: predicted_holes) that the full-resolution `score` map (scored
+    around them) fills: each hole's best score within a quarter step of its prediction, its saddle fit
+    within HOLE_REACH of a step of the prediction, scored >= HOLE_SCORE x the median of the board's
+    corners the boxes cover, and no closer than half a step to a corner already `taken` (M, 2).
+    Returns their cells (F, 2), positions (F, 2) and scores (F,)."""
+    none = np.zeros((0, 2), np.int64), np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    h, w = score.shape
+    own = board.xy[(score[np.clip(np.rint(board.xy[:, 1]).astype(int), 0, h - 1),
+                          np.clip(np.rint(board.xy[:, 0]).astype(int), 0, w - 1)] > 0)]
+    if len(own) == 0:
+        return none
+    reference = median(_best_near(score, own, 1))
+    peaks, values = [], []
+    for pred, step in zip(preds, steps):
+        peak, value = _best_peak(score, pred, max(1, int(0.25 * step)))
+        peaks.append(peak)
+        values.append(value)
+    peaks, values = np.array(peaks, np.float64), np.array(values)
+    radius = window_for_spacing(float(median(steps)))
+    fitted, ok = refine(gray, peaks, "saddle", float(0.25 * steps.max()), radius)
+    ok &= values >= HOLE_SCORE * reference
+    ok &= vector_lengths(fitted - preds) <= HOLE_REACH * steps
+    if len(taken):
+        ok &= np.linalg.norm(fitted[:, None] - taken[None], axis=2).min(1) >= 0.5 * steps
+    return cells[ok], fitted[ok].astype(np.float32), values[ok].astype(np.float32)
+
+
+def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) -> Board:
+    """The board with corners at cells (F, 2) and positions xy (F, 2) added, indexed from `first` on,
+    its arrays in row-major order again and read-only."""
+    index = np.concatenate([board.corner_index, np.arange(first, first + len(cells))])
+    grid = np.concatenate([board.grid, cells.astype(np.int32)])
+    points = np.concatenate([board.xy, xy.astype(np.float32)])
+    order = np.lexsort((grid[:, 1], grid[:, 0]))
+    arrays = index[order], grid[order], points[order]
+    for a in arrays:
+        a.setflags(write=False)
+    return dataclasses.replace(board, corner_index=arrays[0], grid=arrays[1], xy=arrays[2])
+
+
+def _best_near(score: np.ndarray, xy: np.ndarray, reach: int) -> np.ndarray:
+    """(N,) the highest score within `reach` px (a square) of each point xy (N, 2)."""
+    h, w = score.shape
+    offsets = np.arange(-reach, reach + 1)
+    col = np.clip(np.rint(xy[:, 0]).astype(np.int64)[:, None, None] + offsets[None, None, :], 0, w - 1)
+    row = np.clip(np.rint(xy[:, 1]).astype(np.int64)[:, None, None] + offsets[None, :, None], 0, h - 1)
+    return score[row, col].reshape(len(xy), -1).max(1)
+
+
+def _best_peak(score: np.ndarray, xy: np.ndarray, reach: int) -> tuple[np.ndarray, float]:
+    """The pixel (x, y) of the highest score within `reach` px (a square) of xy, and that score."""
+    h, w = score.shape
+    x, y = int(round(xy[0])), int(round(xy[1]))
+    top, left = max(y - reach, 0), max(x - reach, 0)
+    window = score[top : min(y + reach + 1, h), left : min(x + reach + 1, w)]
+    if window.size == 0:
+        return np.asarray(xy, np.float64), 0.0
+    row, col = np.unravel_index(int(window.argmax()), window.shape)
+    return np.array([left + col, top + row], np.float64), float(window[row, col])
