@@ -81,6 +81,12 @@ def calm_scene(seed: int, **changes):
     return render_scene(np.random.default_rng(seed), SceneConfig(**{**calm, **changes}))
 
 
+def no_holes(board, shape):
+    """ccdn.holes.predicted_holes finding none (monkeypatch ccdn.detector.predicted_holes with it): a
+    shrunk pass's boards kept as it found them, to judge another mechanism alone."""
+    return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros(0)
+
+
 def stress_scene(subset: str, seed: int):
     """Render `seed` of benchmarks/stress.py's `subset` as the benchmark does (its calm scene with the
     subset's condition), so that a test and the benchmark's table speak of the same image."""

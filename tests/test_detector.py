@@ -11,12 +11,7 @@ import numpy as np
 import pytest
 
 import ccdn
-from conftest import index_map, nearest_distances, stress_scene
-
-
-def _no_holes(board):
-    """ccdn.holes.predicted_holes finding none: a shrunk pass's boards kept as it found them."""
-    return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros(0)
+from conftest import index_map, nearest_distances, no_holes, stress_scene
 
 
 def test_runtime_never_imports_torch_or_training_code():
@@ -266,7 +261,7 @@ def test_a_board_whose_squares_thin_too_much_on_the_halved_frame_gets_the_full_r
     assert len(scene.corners) == 77 and len(found.boards) == 1
     assert len(found) == 76 and (nearest_distances(found.xy, scene.corners) < 1.5).sum() == 76
     monkeypatch.setattr(detector_module, "THIN_SQUARE", 0.0)
-    monkeypatch.setattr("ccdn.detector.predicted_holes", _no_holes)
+    monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)
     detector = ccdn.Detector(threads=2)
     shapes = _network_frames(detector)
     assert (nearest_distances(detector.detect(scene.image).xy, scene.corners) < 1.5).sum() <= 70
@@ -452,7 +447,8 @@ def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
     off = nearest_distances(scene.corners, found.xy)  # each found corner's distance to the nearest true one
     assert (off < 1.5).sum() >= 21 and np.median(off) < 0.1
     assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 21
-    monkeypatch.setattr("ccdn.grid.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone
+    monkeypatch.setattr("ccdn.grid.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone ...
+    monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # ... of the grid (21 with ccdn.holes' look)
     assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 20
 
 
@@ -467,7 +463,7 @@ def test_a_gap_on_a_shadows_edge_is_filled_from_its_edge_lines(monkeypatch):
     the network vouching for corners: _Grower.vouch took one of them without that fit, and so is the
     full-resolution look at the holes: ccdn.holes)."""
     monkeypatch.setattr("ccdn.grid.SHADE_SPREAD", np.inf)
-    monkeypatch.setattr("ccdn.detector.predicted_holes", _no_holes)
+    monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)
     monkeypatch.setattr("ccdn.grid.VOUCH_SCORE", np.inf)
     scene = stress_scene("shadow", 7_160_033)
     found = ccdn.Detector(threads=2).detect(scene.image)

@@ -16,7 +16,7 @@ import pytest
 
 from ccdn.checker import Sampler
 from ccdn.grid import Board, _Grower, find_boards, hole_cells, nearest_neighbours
-from conftest import calm_scene, index_map, nearest_distances, stress_scene
+from conftest import calm_scene, index_map, nearest_distances, no_holes, stress_scene
 
 synth = pytest.importorskip("ccdn_training.synth")
 
@@ -116,12 +116,12 @@ def test_missing_corners_leave_holes_not_broken_boards(hole):
 ROW_1 = [(1, 0), (1, 1), (1, 2), (1, 3)]
 
 
-@pytest.mark.parametrize("missing, holes", [([(1, 1)], [(1, 1)]), ([(0, 1), (2, 2)], [(0, 1), (2, 2)]),
-                                             ([(0, 0), (2, 3)], []), (ROW_1, ROW_1)])
-def test_hole_cells_are_the_missing_corners_with_board_corners_on_both_sides(missing, holes):
-    """A corner missing between two of the board's along its row or its column is a hole, one at
-    an outline's end (where a board may simply end, or the frame cut it) is not; a whole line missing
-    between two is holes."""
+@pytest.mark.parametrize("missing, holes", [([(1, 1)], [(1, 1)]), ([(0, 0), (2, 3)], [(0, 0), (2, 3)]),
+                                             ([(0, 0), (0, 1)], [(0, 1)]), (ROW_1, ROW_1)])
+def test_hole_cells_are_the_missing_corners_the_board_holds_on_two_sides(missing, holes):
+    """A missing corner with two of the board's next to it along its row and column is a hole
+    (inside the board, or a notch of its outline such as a corner an occluder covers); one with a
+    single neighbour, beyond a straight stretch of the outline, is not."""
     rows, cols = np.mgrid[0:3, 0:4]
     grid = np.stack([rows.ravel(), cols.ravel()], 1)
     grid = grid[[tuple(cell) not in missing for cell in grid.tolist()]].astype(np.int32)
@@ -602,6 +602,7 @@ def test_a_corner_whose_quad_the_other_board_covers_completes_where_its_half_edg
     assert [len(board) for board in boards] == [54, 41]
     assert all(_true_board(board, scene, 0.15) for board in boards)
     monkeypatch.setattr("ccdn.grid.LOOSE_EDGES", 1.1)  # no half-edge that even: the strict test alone
+    monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # (ccdn.holes' look takes it too)
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [54, 40]
 
 
@@ -618,6 +619,7 @@ def test_the_network_vouches_for_a_corner_whose_quads_an_occluder_covers(monkeyp
     assert len(scene.corners) == 68 and [len(board) for board in boards] == [68]
     assert _true_board(boards[0], scene, 0.11)
     monkeypatch.setattr("ccdn.grid.VOUCH_SCORE", np.inf)
+    monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # (ccdn.holes' look takes it too)
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [67]
 
 
@@ -647,6 +649,8 @@ def test_a_crowded_corner_whose_wide_quads_are_mixed_gets_no_second_chance(monke
     are sampled to pass at all (ccdn.grid.WIDE_SPREAD): both boards of each render on one true board,
     indexed as they are, and no false corner; without the crowded test (CROWDED 0) as before."""
     import ccdn
+    # a corner the front board half covers, unlabelled, joins a board by ccdn.holes' look: left out here
+    monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)
     for seed in (7_120_620, 7_121_496):
         scene = stress_scene("two-boards", seed)
         for crowded, right in ((0.75, True), (0.0, False)):

@@ -13,8 +13,8 @@ When the score peaks there lie at least COARSE_MIN_SQUARE px apart and the pass 
 squares are that big on the shrunk frame (DEEP_MIN_SQUARE on frames shrunk 4x or more; on the
 halved frame none of them thinner than THIN_SQUARE, as a fisheye board's rim can be), their
 corners are refined on the full-resolution image and the finer passes are skipped (the holes such a
-pass leaves inside a board, where an occluder's or a shadow's edge hid corners from the shrunk
-frame, are looked at with the full-resolution network: ccdn.holes); otherwise the
+pass leaves in a board, where an occluder's or a shadow's edge hid corners from the shrunk frame,
+are looked at with the full-resolution network: ccdn.holes; not with fast_check); otherwise the
 next finer pass runs, down to the full frame, which is scored only inside boxes around what the
 finest shrunk pass responded to (ccdn.regions: a frame with nothing there costs no full-resolution
 network). Small squares and frames without a board therefore pay for the shrunk passes, and a
@@ -201,7 +201,7 @@ class Detector:
         on the peaks, before any refinement, then on the corners found, their gaps and, on the halved
         frame, their boards' thinnest squares, before their edge-line refinement, which a pass left to
         a finer one would waste: with any_squares, only on the peaks) or no board is found. The holes
-        a kept pass leaves inside its boards are filled from the full-resolution network (_filled_holes)."""
+        a kept pass leaves in its boards are filled from the full-resolution network (_filled_holes)."""
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
@@ -258,9 +258,9 @@ class Detector:
 
     def _filled_holes(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
                       clock: _Clock):
-        """xy, values and boards with the holes a shrunk pass left inside its boards filled from the
-        full-resolution network's peaks, scored only around them (ccdn.holes)."""
-        holes = [predicted_holes(board) for board in found]
+        """xy, values and boards with the holes a shrunk pass left in its boards (ccdn.grid.hole_cells)
+        filled from the full-resolution network's peaks, scored only around them (ccdn.holes)."""
+        holes = [predicted_holes(board, gray.shape) for board in found]
         boxes = [box for _, preds, steps in holes for box in hole_boxes(preds, steps, gray.shape)]
         if not boxes:
             return xy, values, found

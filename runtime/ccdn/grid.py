@@ -299,13 +299,13 @@ class Board:
 
 
 def hole_cells(board: Board) -> np.ndarray:
-    """(K, 2) (row, col) of the board's missing corners that have its corners on both sides along
-    their row or column: corners lost inside the board (under an occluder's or a shadow's edge, or
-    seen too coarsely), not beyond its outline, where a board simply ends."""
-    filled = np.zeros((board.rows + 2, board.cols + 2), bool)
-    filled[board.grid[:, 0] + 1, board.grid[:, 1] + 1] = True
-    between = (filled[:-2, 1:-1] & filled[2:, 1:-1]) | (filled[1:-1, :-2] & filled[1:-1, 2:])
-    return np.argwhere(between & ~filled[1:-1, 1:-1])
+    """(K, 2) (row, col) of the board's missing corners next to LOOSE_NEIGHBOURS or more of its own
+    along their row and column: inside the board or in a notch of its outline, where something hid
+    them (an occluder's or a shadow's edge, or a pass that saw them too coarsely); beyond a straight
+    outline, where a board simply ends, a position has one."""
+    filled = np.zeros((board.rows, board.cols), bool)
+    filled[board.grid[:, 0], board.grid[:, 1]] = True
+    return np.argwhere((_row_col_neighbours(filled) >= LOOSE_NEIGHBOURS) & ~filled)
 
 
 def largest_first(boards) -> list[Board]:
@@ -648,7 +648,7 @@ class _Grower:
         # not just two quad pairs that differ; the edge lines' crossing is judged by its half-edges instead
         # (_on_edge_lines, module docstring)
         good &= (shift <= tol) & (x_like(self.gray, points, tol / TOLERANCE) | on_edges)
-        good &= _inside(points, self.gray.shape)
+        good &= inside_margin(points, self.gray.shape)
         # edge_only's are judged by their half-edges instead (_on_edge_lines), loose ones by theirs below
         if (again := good & saddle & ~loose).any():
             good[again] = self._accepts(cells[again], points[again], u[again], v[again], True, COMPLETION_MIN_PAIRS,
@@ -1037,7 +1037,7 @@ def _contrast(levels: np.ndarray, sign: np.ndarray, log: bool = False) -> np.nda
     return nanmedian_rows(pair_differences(levels) * sign[:, None])
 
 
-def _inside(xy: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+def inside_margin(xy: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """(N,) whether points xy (N, 2) lie at least EDGE_MARGIN px inside a frame of `shape` (H, W)."""
     h, w = shape[:2]
     return ((xy >= EDGE_MARGIN) & (xy <= np.array([w - 1, h - 1]) - EDGE_MARGIN)).all(1)
@@ -1371,7 +1371,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     corner_like = x_like(gray, xy, gaps)[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
-    free = _inside(xy, gray.shape)  # corners at the frame's edge are in no board
+    free = inside_margin(xy, gray.shape)  # corners at the frame's edge are in no board
     found, added = [], []
     # strict seed squares first; squares with uneven corners only among the seeds left when they are done
     # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less);
