@@ -84,7 +84,7 @@ def calm_scene(seed: int, **changes):
 def no_holes(board, shape):
     """ccdn.holes.predicted_holes finding none (monkeypatch ccdn.detector.predicted_holes with it): a
     shrunk pass's boards kept as it found them, to judge another mechanism alone."""
-    return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros(0)
+    return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros((0, 4, 2))
 
 
 def stress_scene(subset: str, seed: int):

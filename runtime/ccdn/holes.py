@@ -4,9 +4,9 @@ Where an occluder's or a shadow's edge runs along a board's corners, the network
 frame often misses them while it finds the board: positions the board holds on two sides or more
 along their row and column (ccdn.grid.hole_cells: inside it, or in a notch of its outline) where
 the image tests of ccdn.grid fail, since something covers part of the corner's quads. The
-full-resolution network still peaks on most of them (the 1300 cached stress renders: of the 69
+full-resolution network still peaks on most of them (the 1300 cached stress renders: of the 79
 corners the occluded, shadow and two-boards renders missed inside boards the halved frame's pass
-found, 66 had a peak within 1.5 px). Sending such frames on to the full-frame pass found 25 corners
+found, 69 had a peak within 1.5 px). Sending such frames on to the full-frame pass found 25 corners
 more, but at its whole cost (the occluded renders' median time about tripled); here only a box a
 step around each hole is scored, and a hole takes the saddle fit of the box's best peak near the
 grid's prediction, as the grid's vouching does (ccdn.grid._Grower.vouch): scored at least
@@ -23,8 +23,10 @@ import dataclasses
 import cv2
 import numpy as np
 
-from .grid import Board, hole_cells, inside_margin
+from .edges import lattice_steps
+from .grid import SHADE_SPREAD, Board, hole_cells, inside_margin
 from .refine import refine, window_for_spacing
+from .shade import light_levels, light_spread, refined_across_shadows_edge
 from .stats import median, vector_lengths
 
 HOLE_REACH = 0.05  # of the local step: the fit this far from the prediction at most (0.1 took a corner an
@@ -36,12 +38,12 @@ NEAR_CELLS = 2  # a hole's prediction: a homography fitted to the board's corner
 def predicted_holes(board: Board, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The holes (ccdn.grid.hole_cells) of a board in a frame of `shape` (H, W): their (row, col)
     (K, 2), positions predicted by a homography fitted to the board's corners up to NEAR_CELLS cells
-    away (K, 2) and the shorter of the predicted steps along their row and column (K,). Holes with
-    fewer than 4 such corners, a degenerate fit, or a prediction off the frame (less than
-    EDGE_MARGIN inside: ccdn.grid.inside_margin; a board the frame cuts) are left out."""
-    cells = hole_cells(board)
+    away (K, 2) and its lattice steps there (K, 4, 2: +col, -col, +row, -row, as
+    ccdn.edges.lattice_steps). Holes with fewer than 4 such corners, a degenerate fit, or a
+    prediction off the frame (less than EDGE_MARGIN inside: ccdn.grid.inside_margin; a board the
+    frame cuts) are left out."""
     found_cells, preds, steps = [], [], []
-    for cell in cells:
+    for cell in hole_cells(board):
         near = (np.abs(board.grid - cell) <= NEAR_CELLS).all(1)
         if near.sum() < 4:
             continue
@@ -53,19 +55,20 @@ def predicted_holes(board: Board, shape: tuple[int, int]) -> tuple[np.ndarray, n
         point, along_row, along_col = cv2.perspectiveTransform(at, homography)[0]
         if not inside_margin(point[None], shape)[0]:
             continue
+        u, v = along_row - point, along_col - point
         found_cells.append(cell)
         preds.append(point)
-        steps.append(vector_lengths(np.stack([along_row - point, along_col - point])).min())
+        steps.append((u, -u, v, -v))
     if not found_cells:
-        return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros(0)
+        return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros((0, 4, 2))
     return np.array(found_cells), np.array(preds), np.array(steps)
 
 
 def hole_boxes(preds: np.ndarray, steps: np.ndarray, shape: tuple[int, int]) -> list[tuple[int, int, int, int]]:
-    """Boxes (top, bottom, left, right) one step around each prediction: the hole and its neighbours,
-    whose scores are the reference (ccdn.session.ScoreSession.scores_in)."""
+    """Boxes (top, bottom, left, right) one step around each prediction (lattice steps (K, 4, 2)):
+    the hole and its neighbours, whose scores are the reference (ccdn.session.ScoreSession.scores_in)."""
     h, w = shape
-    reach = np.ceil(steps + 1).astype(np.int64)
+    reach = np.ceil(_shorter(steps) + 1).astype(np.int64)
     x, y = np.rint(preds[:, 0]).astype(np.int64), np.rint(preds[:, 1]).astype(np.int64)
     return [(int(max(b - r, 0)), int(min(b + r + 1, h)), int(max(a - r, 0)), int(min(a + r + 1, w)))
             for a, b, r in zip(x, y, reach)]
@@ -73,32 +76,52 @@ def hole_boxes(preds: np.ndarray, steps: np.ndarray, shape: tuple[int, int]) -> 
 
 def filled_holes(gray: np.ndarray, board: Board, cells: np.ndarray, preds: np.ndarray, steps: np.ndarray,
                  score: np.ndarray, taken: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The holes (cells, preds, steps: predicted_holes) that the full-resolution `score` map (scored
-    around them) fills: each hole's best score within a quarter step of its prediction, its saddle fit
-    within HOLE_REACH of a step of the prediction and EDGE_MARGIN inside the frame (as every board
-    corner: ccdn.grid.inside_margin), scored >= HOLE_SCORE x the median of the board's corners the
-    boxes cover, and no closer than half a step to a corner already `taken` (M, 2).
-    Returns their cells (F, 2), positions (F, 2) and scores (F,)."""
+    """The holes (cells, preds, lattice steps: predicted_holes) that the full-resolution `score` map
+    (scored around them) fills: each hole's best score within a quarter step of its prediction,
+    scored >= HOLE_SCORE x the median of the board's corners the boxes cover; its saddle fit within
+    HOLE_REACH of a step of the prediction and EDGE_MARGIN inside the frame (as every board corner:
+    ccdn.grid.inside_margin), or, on a board lit unevenly (ccdn.shade.light_spread above
+    ccdn.grid.SHADE_SPREAD), the fit on the levelled frame where that one fails (a shadow's edge
+    across the corner pulls the saddle fit off it, or leaves no saddle: ccdn.shade); no closer than
+    half a step to a corner already `taken` (M, 2). Returns their cells (F, 2), positions (F, 2)
+    and scores (F,)."""
     none = np.zeros((0, 2), np.int64), np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
     h, w = score.shape
     own = board.xy[(score[np.clip(np.rint(board.xy[:, 1]).astype(int), 0, h - 1),
                           np.clip(np.rint(board.xy[:, 0]).astype(int), 0, w - 1)] > 0)]
     if len(own) == 0:
         return none
-    reference = median(_best_near(score, own, 1))
+    step = _shorter(steps)
     peaks, values = [], []
-    for pred, step in zip(preds, steps):
-        peak, value = _best_peak(score, pred, max(1, int(0.25 * step)))
+    for pred, reach in zip(preds, step):
+        peak, value = _best_peak(score, pred, max(1, int(0.25 * reach)))
         peaks.append(peak)
         values.append(value)
-    peaks, values = np.array(peaks, np.float64), np.array(values)
-    radius = window_for_spacing(float(median(steps)))
-    fitted, ok = refine(gray, peaks, "saddle", float(0.25 * steps.max()), radius)
-    ok &= values >= HOLE_SCORE * reference
-    ok &= (vector_lengths(fitted - preds) <= HOLE_REACH * steps) & inside_margin(fitted, gray.shape)
+    values = np.array(values)
+    strong = values >= HOLE_SCORE * median(_best_near(score, own, 1))
+    fitted, ok = refine(gray, np.array(peaks, np.float64), "saddle", float(0.25 * step.max()),
+                        window_for_spacing(float(median(step))))
+    ok &= _near_prediction(fitted, preds, step, gray.shape)
+    if (again := strong & ~ok).any() and light_spread(light_levels(gray, board.xy.astype(np.float64),
+                                                                    lattice_steps(board))) > SHADE_SPREAD:
+        levelled_fit, moved = refined_across_shadows_edge(gray, preds[again], steps[again])
+        fitted[again] = levelled_fit
+        ok[again] = moved & _near_prediction(levelled_fit, preds[again], step[again], gray.shape)
+    ok &= strong
     if len(taken):
-        ok &= np.linalg.norm(fitted[:, None] - taken[None], axis=2).min(1) >= 0.5 * steps
+        ok &= np.linalg.norm(fitted[:, None] - taken[None], axis=2).min(1) >= 0.5 * step
     return cells[ok], fitted[ok].astype(np.float32), values[ok].astype(np.float32)
+
+
+def _near_prediction(fitted: np.ndarray, preds: np.ndarray, step: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(K,) whether fits lie within HOLE_REACH x the shorter step of their predictions and
+    EDGE_MARGIN inside a frame of `shape`."""
+    return (vector_lengths(fitted - preds) <= HOLE_REACH * step) & inside_margin(fitted, shape)
+
+
+def _shorter(steps: np.ndarray) -> np.ndarray:
+    """(K,) the shorter of the lattice steps (K, 4, 2) along the row and the column."""
+    return np.minimum(vector_lengths(steps[:, 0]), vector_lengths(steps[:, 2]))
 
 
 def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) -> Board:
