@@ -15,7 +15,8 @@ of the prediction, which a fit an occluder's edge pulls off the corner leaves. O
 shadow (ccdn.shade) a shadow's edge along the hole pulls that fit off too, or leaves no saddle:
 there the fit on the levelled frame is tried, as the detector's edge stage does for such corners.
 Measured (1300 renders): 359 -> 308 corners missed (the levelled fit: 323 -> 308), no false
-positive more, no render worse; about HOLECOST a frame with holes, nothing without.
+positive more, no render worse; a frame with holes pays 2.1 ms (median over 223 such passes
+of 480 renders; mean 3.2), one without 0.04 ms.
 """
 
 from __future__ import annotations
@@ -69,16 +70,24 @@ def predicted_holes(board: Board, shape: tuple[int, int]) -> tuple[np.ndarray, n
 def hole_boxes(preds: np.ndarray, steps: np.ndarray, shape: tuple[int, int]) -> list[tuple[int, int, int, int]]:
     """Boxes (top, bottom, left, right) covering one step around each prediction (lattice steps
     (K, 4, 2)): the hole and its neighbours, whose scores are the reference. Overlapping ones are
-    merged: each box is one network call with its receptive halo (ccdn.session.ScoreSession.scores_in),
-    and a board's holes often lie side by side."""
+    merged into the box around both: each box is one network call with its receptive halo
+    (ccdn.session.ScoreSession.scores_in), and a board's holes often lie side by side."""
     h, w = shape
     reach = np.ceil(_shorter(steps) + 1).astype(np.int64)
     x, y = np.rint(preds[:, 0]).astype(np.int64), np.rint(preds[:, 1]).astype(np.int64)
-    covered = np.zeros(shape, np.uint8)
-    for a, b, r in zip(x, y, reach):
-        covered[max(b - r, 0) : min(b + r + 1, h), max(a - r, 0) : min(a + r + 1, w)] = 1
-    count, _, stats, _ = cv2.connectedComponentsWithStats(covered, connectivity=4)
-    return [(int(top), int(top + height), int(left), int(left + width)) for left, top, width, height, _ in stats[1:]]
+    boxes = [[max(b - r, 0), min(b + r + 1, h), max(a - r, 0), min(a + r + 1, w)] for a, b, r in zip(x, y, reach)]
+    merged = []
+    while boxes:  # a handful of boxes: each one grows by every box it overlaps until none does
+        box = boxes.pop()
+        overlapping = [other for other in boxes if other[0] < box[1] and box[0] < other[1] and other[2] < box[3]
+                       and box[2] < other[3]]
+        if overlapping:
+            boxes = [other for other in boxes if other not in overlapping]
+            boxes.append([min(b[0] for b in overlapping + [box]), max(b[1] for b in overlapping + [box]),
+                          min(b[2] for b in overlapping + [box]), max(b[3] for b in overlapping + [box])])
+        else:
+            merged.append(tuple(int(v) for v in box))
+    return merged
 
 
 def filled_holes(gray: np.ndarray, board: Board, cells: np.ndarray, preds: np.ndarray, steps: np.ndarray,
