@@ -48,7 +48,7 @@ from .holes import filled_holes, hole_boxes, predicted_holes, with_corners
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region, thinnest
 from .models import default_coarse_model
-from .peaks import find_peaks, kmeans_outliers, suppress
+from .peaks import best_near, find_peaks, kmeans_outliers, suppress
 from .regions import look_boxes
 from .refine import refine, refine_from_shrunk, window_for_spacing
 from .result import Detection
@@ -338,10 +338,7 @@ def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...
     for board in boards:
         new = board.corner_index >= len(xy)
         extra[board.corner_index[new] - len(xy)] = board.xy[new]
-    h, w = score.shape
-    col = np.rint((extra[:, 0] + 0.5) / scale - 0.5).astype(np.int64)[:, None] + np.array([-1, 0, 1] * 3)
-    row = np.rint((extra[:, 1] + 0.5) / scale - 0.5).astype(np.int64)[:, None] + np.repeat([-1, 0, 1], 3)
-    near = score[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)].max(1)  # the 3x3 pixels around each
+    near = best_near(score, (extra + 0.5) / scale - 0.5)  # the 3x3 pixels of the pass's map around each
     return np.concatenate([xy, extra]), np.concatenate([values, near]).astype(np.float32)
 
 

@@ -305,7 +305,7 @@ def hole_cells(board: Board) -> np.ndarray:
     outline, where a board simply ends, a position has one."""
     filled = np.zeros((board.rows, board.cols), bool)
     filled[board.grid[:, 0], board.grid[:, 1]] = True
-    return np.argwhere((_row_col_neighbours(filled) >= LOOSE_NEIGHBOURS) & ~filled)
+    return _held_on_two_sides(filled)
 
 
 def largest_first(boards) -> list[Board]:
@@ -772,7 +772,7 @@ class _Grower:
         if self.gray is None or self.score is None:
             return
         filled = self.idx >= 0
-        cells = np.argwhere((_row_col_neighbours(filled) >= LOOSE_NEIGHBOURS) & ~filled)
+        cells = _held_on_two_sides(filled)
         own = self.idx[filled]
         own = own[own < len(self.xy)]  # the given corners: completion's have no score
         if len(cells) == 0 or len(own) == 0:
@@ -1079,6 +1079,12 @@ def _row_col_neighbours(filled: np.ndarray) -> np.ndarray:
     count[:, 1:] += filled[:, :-1]
     count[:, :-1] += filled[:, 1:]
     return count
+
+
+def _held_on_two_sides(filled: np.ndarray) -> np.ndarray:
+    """(K, 2) (row, col) of the empty cells of a grid (filled: (R, C) bool) with LOOSE_NEIGHBOURS or
+    more filled row/column neighbours: inside a board or in a notch of its outline."""
+    return np.argwhere((_row_col_neighbours(filled) >= LOOSE_NEIGHBOURS) & ~filled)
 
 
 def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray,

@@ -28,6 +28,7 @@ import numpy as np
 
 from .edges import lattice_steps
 from .grid import SHADE_SPREAD, Board, hole_cells, inside_margin
+from .peaks import best_near
 from .refine import refine, window_for_spacing
 from .shade import light_levels, light_spread, refined_across_shadows_edge
 from .stats import median, vector_lengths
@@ -102,9 +103,7 @@ def filled_holes(gray: np.ndarray, board: Board, cells: np.ndarray, preds: np.nd
     half a step to a corner already `taken` (M, 2). Returns their cells (F, 2), positions (F, 2)
     and scores (F,)."""
     none = np.zeros((0, 2), np.int64), np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
-    h, w = score.shape
-    own = board.xy[(score[np.clip(np.rint(board.xy[:, 1]).astype(int), 0, h - 1),
-                          np.clip(np.rint(board.xy[:, 0]).astype(int), 0, w - 1)] > 0)]
+    own = board.xy[best_near(score, board.xy, 0) > 0]  # the board's corners the boxes cover
     if len(own) == 0:
         return none
     step = _shorter(steps)
@@ -114,7 +113,7 @@ def filled_holes(gray: np.ndarray, board: Board, cells: np.ndarray, preds: np.nd
         peaks.append(peak)
         values.append(value)
     values = np.array(values)
-    strong = values >= HOLE_SCORE * median(_best_near(score, own, 1))
+    strong = values >= HOLE_SCORE * median(best_near(score, own))
     fitted, ok = refine(gray, np.array(peaks, np.float64), "saddle", float(0.25 * step.max()),
                         window_for_spacing(float(median(step))))
     ok &= _near_prediction(fitted, preds, step, gray.shape)
@@ -151,15 +150,6 @@ def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) ->
     for a in arrays:
         a.setflags(write=False)
     return dataclasses.replace(board, corner_index=arrays[0], grid=arrays[1], xy=arrays[2])
-
-
-def _best_near(score: np.ndarray, xy: np.ndarray, reach: int) -> np.ndarray:
-    """(N,) the highest score within `reach` px (a square) of each point xy (N, 2)."""
-    h, w = score.shape
-    offsets = np.arange(-reach, reach + 1)
-    col = np.clip(np.rint(xy[:, 0]).astype(np.int64)[:, None, None] + offsets[None, None, :], 0, w - 1)
-    row = np.clip(np.rint(xy[:, 1]).astype(np.int64)[:, None, None] + offsets[None, :, None], 0, h - 1)
-    return score[row, col].reshape(len(xy), -1).max(1)
 
 
 def _best_peak(score: np.ndarray, xy: np.ndarray, reach: int) -> tuple[np.ndarray, float]:

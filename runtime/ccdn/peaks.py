@@ -42,6 +42,16 @@ def find_peaks(score: np.ndarray, relative: float = 0.5, floor: float = 0.3, rad
     return xy[keep], values[keep].astype(np.float32)
 
 
+def best_near(score: np.ndarray, xy: np.ndarray, reach: int = 1) -> np.ndarray:
+    """(N,) the highest score within `reach` px (a square; at the map's edge, clipped to it) of each
+    point xy (N, 2), in the score map's pixels."""
+    h, w = score.shape
+    offsets = np.arange(-reach, reach + 1)
+    col = np.clip(np.rint(xy[:, 0]).astype(np.int64)[:, None, None] + offsets[None, None, :], 0, w - 1)
+    row = np.clip(np.rint(xy[:, 1]).astype(np.int64)[:, None, None] + offsets[None, :, None], 0, h - 1)
+    return score[row, col].reshape(len(xy), -1).max(1)
+
+
 def suppress(xy: np.ndarray, radius: float) -> np.ndarray:
     """Greedy NMS on points sorted by descending score: True for points no kept stronger point is near.
 
