@@ -87,6 +87,12 @@ def no_holes(board, shape):
     return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros((0, 4, 2))
 
 
+def no_growth_into_shade(gray, board, *rest):
+    """ccdn.shaded.grown_into_shade growing nothing (monkeypatch ccdn.detector.grown_into_shade with
+    it): a board kept without its part in deep shade, to judge another mechanism alone."""
+    return board, np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+
+
 def stress_scene(subset: str, seed: int):
     """Render `seed` of benchmarks/stress.py's `subset` as the benchmark does (its calm scene with the
     subset's condition), so that a test and the benchmark's table speak of the same image."""

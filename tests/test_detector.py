@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import ccdn
-from conftest import index_map, nearest_distances, no_holes, stress_scene
+from conftest import index_map, nearest_distances, no_growth_into_shade, no_holes, stress_scene
 
 
 def test_runtime_never_imports_torch_or_training_code():
@@ -448,7 +448,8 @@ def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
     assert (off < 1.5).sum() >= 21 and np.median(off) < 0.1
     assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 21
     monkeypatch.setattr("ccdn.grid.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone ...
-    monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # ... of the grid (21 with ccdn.holes' look)
+    monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # ... of the grid (21 with ccdn.holes' look
+    monkeypatch.setattr("ccdn.detector.grown_into_shade", no_growth_into_shade)  # or with ccdn.shaded's growth)
     assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 20
 
 
@@ -471,6 +472,7 @@ def test_a_gap_on_a_shadows_edge_is_filled_from_its_edge_lines(monkeypatch):
     assert (nearest_distances(scene.corners, found.xy) < 1.5).all()  # each found corner near a true one
     assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 77  # true corners found
     monkeypatch.setattr("ccdn.grid._Grower._on_shadows_edge", lambda self, cells, *rest: np.zeros(len(cells), bool))
+    monkeypatch.setattr("ccdn.detector.grown_into_shade", no_growth_into_shade)  # (77 with ccdn.shaded's growth)
     assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 75
 
 
@@ -491,6 +493,7 @@ def test_a_board_across_a_soft_shadows_edge_is_found_on_the_levelled_frame(monke
     assert index_map(board, scene.grid[label]) is not None
     monkeypatch.setattr("ccdn.grid.SHADE_SPREAD", np.inf)
     monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # (ccdn.holes' look fills 5 of them: 40)
+    monkeypatch.setattr("ccdn.detector.grown_into_shade", no_growth_into_shade)  # (ccdn.shaded's growth: 36)
     assert len(ccdn.Detector(threads=2).detect(scene.image)) <= 35
 
 
@@ -531,6 +534,32 @@ def test_a_hole_a_shadows_edge_runs_across_takes_the_fit_on_the_levelled_frame(m
     without = nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners)
     assert (without >= 1.5).sum() == 7
     assert distance[without >= 1.5][distance[without >= 1.5] < 1.5].max() < 0.2
+
+
+def test_a_boards_part_in_deep_shade_is_grown_from_the_network_on_the_levelled_frame(monkeypatch):
+    """In the stress set's shadow render 7160855 (fresh renders, seeds from the 200th on) a shadow
+    takes most of the light from three columns of a board of 156 corners: the network scores them
+    below its peak threshold and the board is found without them (28 missed). A shadow's edge runs
+    across the found part's corners, so the board is grown outwards on the frame levelled around it
+    (ccdn.shaded), where the network scores the shaded corners like lit ones: 20 more, within 1 px
+    of their labels (0.1 px on average), one board indexed as it is, no false corner more (the one
+    1.6 px off a label is there either way)."""
+    scene = stress_scene("shadow", 7_160_855)
+    found = ccdn.Detector(threads=2).detect(scene.image)
+    assert len(scene.corners) == 156 and len(found.boards) == 1
+    distance = nearest_distances(found.xy, scene.corners)
+    assert (distance >= 1.5).sum() == 8
+    board = found.boards[0]
+    to_labels = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+    labelled = to_labels.min(1) < 1.5
+    assert index_map(SimpleNamespace(grid=board.grid[labelled]), scene.grid[to_labels[labelled].argmin(1)]) is not None
+    monkeypatch.setattr("ccdn.shaded.SHADE_SPREAD", np.inf)  # no position counts as shaded: no growth
+    without = ccdn.Detector(threads=2).detect(scene.image).xy
+    assert (nearest_distances(without, scene.corners) >= 1.5).sum() == 28
+    grown = (nearest_distances(without, scene.corners) >= 1.5) & (distance < 1.5)
+    assert grown.sum() == 20 and distance[grown].max() < 1.0 and distance[grown].mean() < 0.15
+    false = (nearest_distances(scene.corners, found.xy) >= 1.5).sum()
+    assert false == (nearest_distances(scene.corners, without) >= 1.5).sum() == 1
 
 
 def test_a_small_board_that_a_shadow_keeps_from_seeding_is_found_on_the_levelled_frame(monkeypatch):

@@ -54,6 +54,7 @@ from .refine import refine, refine_from_shrunk, window_for_spacing
 from .result import Detection
 from .session import ScoreSession
 from .shade import across_shadows_edge, light_levels, light_spread, refined_across_shadows_edge
+from .shaded import grown_into_shade
 from .stats import median, quantile
 
 ImageInput = str | os.PathLike | np.ndarray
@@ -186,7 +187,10 @@ class Detector:
             xy, values, found, peaks = self._full_frame(gray, boxes, boards, board_size, clock)
             if self._saddle_boards:
                 xy, values, found = self._loose_looks(gray, xy, values, found, peaks, boards, board_size, clock)
-        xy, found = self._on_edges(gray, xy, found, clock)
+        lights = None
+        if self._saddle_boards and not self.fast_check:
+            xy, values, found, lights = self._grown_into_shade(gray, xy, values, found, board_size, clock)
+        xy, found = self._on_edges(gray, xy, found, clock, lights)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
                          found, clock.laps)
 
@@ -277,6 +281,23 @@ class Detector:
         clock.lap("boards")
         return xy, values, found
 
+    def _grown_into_shade(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
+                          board_size, clock: _Clock):
+        """xy, values and boards with each board's part in deep shade grown from it (ccdn.shaded): the
+        network on the frame levelled around a board across whose corners a shadow's edge runs. Also
+        each board's lattice steps and light levels (_light) where it did not grow, for the edge stage."""
+        boards, lights, before = [], [], len(xy)
+        for board in found:
+            light = _light(gray, board)
+            board, points, scores = grown_into_shade(gray, board, *light, self._session, xy, board_size)
+            xy, values = np.concatenate([xy, points]), np.concatenate([values, scores])
+            boards.append(board)
+            lights.append(None if len(points) else light)
+        if len(xy) > before:
+            xy, values, found = _keep_board_corners(xy, values, tuple(boards))
+        clock.lap("boards")
+        return xy, values, found, lights
+
     def _full_frame(self, gray: np.ndarray, boxes: list[tuple[int, int, int, int]] | None, boards: bool,
                     board_size, clock: _Clock):
         """The full-frame pass (the network only inside `boxes` when given: ccdn.regions), with the
@@ -319,11 +340,11 @@ class Detector:
         more_found = tuple(dataclasses.replace(b, xy=_read_only(from_view(b.xy, to_frame))) for b in more_found)
         return _keep_board_corners(*merge(xy, values, found, from_view(more_xy, to_frame), more_values, more_found))
 
-    def _on_edges(self, gray: np.ndarray, xy: np.ndarray, found: tuple[Board, ...], clock: _Clock):
+    def _on_edges(self, gray: np.ndarray, xy: np.ndarray, found: tuple[Board, ...], clock: _Clock, lights=None):
         """xy and boards, the boards' corners refined on their edge lines where the grid filter completed
-        them and the saddle fit refined them (_refined_on_edges)."""
+        them and the saddle fit refined them (_refined_on_edges; lights: each board's _light, where known)."""
         if self._saddle_boards and found:
-            xy, found = _refined_on_edges(gray, xy, found, image_noise(gray) >= NOISY_SIGMA)
+            xy, found = _refined_on_edges(gray, xy, found, image_noise(gray) >= NOISY_SIGMA, lights)
             clock.lap("edges")
         return xy, found
 
@@ -342,7 +363,14 @@ def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...
     return np.concatenate([xy, extra]), np.concatenate([values, near]).astype(np.float32)
 
 
-def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...], noisy: bool):
+def _light(gray: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:
+    """A board's lattice steps (ccdn.edges.lattice_steps) and the light levels of its corners' quads
+    (ccdn.shade.light_levels), which the shade and the edge stages both judge it by."""
+    steps = lattice_steps(board)
+    return steps, light_levels(gray, board.xy.astype(np.float64), steps)
+
+
+def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...], noisy: bool, lights=None):
     """xy and boards with the boards' corners refined on their edge lines (ccdn.edges): all of them
     on a noisy frame, else those on straight lines; on a board under a shadow (ccdn.shade.light_spread
     above ccdn.grid.SHADE_SPREAD) the corners a shadow's edge runs across first get the saddle fit
@@ -350,12 +378,11 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
     pulls them (100 shadow renders: ~850 such corners, 0.31 -> 0.15 px off the truth on average)."""
     xy = xy.copy()
     refined = []
-    for board in boards:
-        steps = lattice_steps(board)
+    for board, light in zip(boards, lights or [None] * len(boards)):
+        steps, levels = light or _light(gray, board)
         chosen = np.ones(len(board), bool) if noisy else on_straight_lines(board, steps)
         board_xy, moved = board.xy.copy(), np.zeros(len(board), bool)  # unmoved corners keep their place
         board_xy[chosen], moved[chosen] = refine_on_edges(gray, board.xy[chosen], steps[chosen])
-        levels = light_levels(gray, board.xy.astype(np.float64), steps)
         if light_spread(levels) > SHADE_SPREAD and (edge := across_shadows_edge(levels)).any():
             board_xy[edge], moved_too = refined_across_shadows_edge(gray, board.xy[edge].astype(np.float64),
                                                                     steps[edge])

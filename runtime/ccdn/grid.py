@@ -313,6 +313,25 @@ def largest_first(boards) -> list[Board]:
     return sorted(boards, key=lambda b: (-len(b), float(b.xy[:, 1].mean()), float(b.xy[:, 0].mean())))
 
 
+def reoriented(board: Board, sign: float, board_size: tuple[int, int] | None = None) -> Board | None:
+    """The board indexed from 0 and oriented again as find_boards does (module docstring), for a
+    grid that grew past its extent (indices below 0 or beyond cols / rows); sign: + where the quads
+    of even row + col of its grid are light. None where it no longer fits board_size."""
+    grid = _orient(board.grid.astype(np.int64), board.xy, sign, board_size, False)
+    return None if grid is None else _indexed_board(board.corner_index, grid, board.xy)
+
+
+def _indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Board:
+    """The read-only Board of corners idx (M,) at (row, col) grid (M, 2) from 0, positions points
+    (M, 2), in row-major order."""
+    order = np.lexsort((grid[:, 1], grid[:, 0]))
+    idx, grid = idx[order], grid[order].astype(np.int32)
+    board = Board(idx, grid, points[order].astype(np.float32), int(grid[:, 1].max() + 1), int(grid[:, 0].max() + 1))
+    for a in (board.corner_index, board.grid, board.xy):
+        a.setflags(write=False)
+    return board
+
+
 class _Grower:
     """Grows one board from a seed square over the free corners."""
 
@@ -504,7 +523,7 @@ class _Grower:
     def _frontier(self) -> np.ndarray:
         """Empty canvas cells next to a filled one along a row or column, (K, 2)."""
         filled = self.idx >= 0
-        return np.argwhere((_row_col_neighbours(filled) > 0) & ~filled)
+        return np.argwhere((row_col_neighbours(filled) > 0) & ~filled)
 
     def _match(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray, u: np.ndarray,
                v: np.ndarray, local: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -620,7 +639,7 @@ class _Grower:
         # board holds on two sides or more: growth's plain test (one quad may be hidden), the fit then
         # judged by its half-edges (LOOSE_EDGES)
         loose = ok & ~strict & ~edge_only
-        loose &= _row_col_neighbours(self.idx >= 0)[cells[:, 0], cells[:, 1]] >= LOOSE_NEIGHBOURS
+        loose &= row_col_neighbours(self.idx >= 0)[cells[:, 0], cells[:, 1]] >= LOOSE_NEIGHBOURS
         if loose.any():
             loose[loose] = self._accepts(cells[loose], preds[loose], u[loose], v[loose])
         tried = strict | edge_only | loose
@@ -870,7 +889,7 @@ class _Grower:
         kept = np.zeros(self.idx.shape, bool)
         while True:
             filled = self.idx >= 0
-            neighbours = _row_col_neighbours(filled)
+            neighbours = row_col_neighbours(filled)
             weak = filled & (neighbours < 2)
             single = np.argwhere(weak & (neighbours == 1))
             if len(single):
@@ -1071,7 +1090,7 @@ def _bends(a: np.ndarray, b: np.ndarray, cos_limit: float) -> np.ndarray:
         return (cos < cos_limit) & (np.minimum(la, lb) ** 2 * (2 - 2 * cos) > KINK_PX**2)
 
 
-def _row_col_neighbours(filled: np.ndarray) -> np.ndarray:
+def row_col_neighbours(filled: np.ndarray) -> np.ndarray:
     """How many of each cell's 4 row/column neighbours are filled."""
     count = np.zeros(filled.shape, np.int64)
     count[1:] += filled[:-1]
@@ -1084,7 +1103,7 @@ def _row_col_neighbours(filled: np.ndarray) -> np.ndarray:
 def _held_on_two_sides(filled: np.ndarray) -> np.ndarray:
     """(K, 2) (row, col) of the empty cells of a grid (filled: (R, C) bool) with LOOSE_NEIGHBOURS or
     more filled row/column neighbours: inside a board or in a notch of its outline."""
-    return np.argwhere((_row_col_neighbours(filled) >= LOOSE_NEIGHBOURS) & ~filled)
+    return np.argwhere((row_col_neighbours(filled) >= LOOSE_NEIGHBOURS) & ~filled)
 
 
 def _seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray,
@@ -1420,14 +1439,4 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             if oriented is not None:
                 found.append((idx, oriented))
     points = np.concatenate([xy, np.reshape(added, (-1, 2))])
-    boards = []
-    for idx, grid in found:
-        order = np.lexsort((grid[:, 1], grid[:, 0]))
-        idx, grid = idx[order], grid[order].astype(np.int32)
-        boards.append(Board(idx, grid, points[idx].astype(np.float32), int(grid[:, 1].max() + 1),
-                            int(grid[:, 0].max() + 1)))
-    boards = largest_first(boards)
-    for b in boards:
-        for a in (b.corner_index, b.grid, b.xy):
-            a.setflags(write=False)
-    return tuple(boards)
+    return tuple(largest_first([_indexed_board(idx, grid, points[idx]) for idx, grid in found]))

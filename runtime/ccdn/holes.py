@@ -28,7 +28,7 @@ import numpy as np
 
 from .edges import lattice_steps
 from .grid import SHADE_SPREAD, Board, hole_cells, inside_margin
-from .peaks import best_near
+from .peaks import best_near, best_peak
 from .refine import refine, window_for_spacing
 from .shade import light_levels, light_spread, refined_across_shadows_edge
 from .stats import median, vector_lengths
@@ -40,19 +40,25 @@ NEAR_CELLS = 2  # a hole's prediction: a homography fitted to the board's corner
 
 
 def predicted_holes(board: Board, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The holes (ccdn.grid.hole_cells) of a board in a frame of `shape` (H, W): their (row, col)
-    (K, 2), positions predicted by a homography fitted to the board's corners up to NEAR_CELLS cells
-    away (K, 2) and its lattice steps there (K, 4, 2: +col, -col, +row, -row, as
-    ccdn.edges.lattice_steps). Holes with fewer than 4 such corners, a degenerate fit, or a
-    prediction off the frame (less than EDGE_MARGIN inside: ccdn.grid.inside_margin; a board the
-    frame cuts) are left out."""
+    """The holes (ccdn.grid.hole_cells) of a board in a frame of `shape` (H, W), predicted
+    (predicted_cells)."""
+    return predicted_cells(board.grid, board.xy, hole_cells(board), shape)
+
+
+def predicted_cells(grid: np.ndarray, xy: np.ndarray, cells: np.ndarray, shape: tuple[int, int]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Positions of a board's (corners at (row, col) `grid` (M, 2), positions xy (M, 2)) empty
+    `cells` (K, 2) in a frame of `shape` (H, W), each predicted by a homography fitted to the
+    board's corners up to NEAR_CELLS cells away: the cells kept (F, 2), their predictions (F, 2) and
+    lattice steps there (F, 4, 2: +col, -col, +row, -row, as ccdn.edges.lattice_steps). Cells with
+    fewer than 4 such corners, a degenerate fit, or a prediction off the frame (less than
+    EDGE_MARGIN inside: ccdn.grid.inside_margin; a board the frame cuts) are left out."""
     found_cells, preds, steps = [], [], []
-    for cell in hole_cells(board):
-        near = (np.abs(board.grid - cell) <= NEAR_CELLS).all(1)
+    for cell in cells:
+        near = (np.abs(grid - cell) <= NEAR_CELLS).all(1)
         if near.sum() < 4:
             continue
-        homography, _ = cv2.findHomography(board.grid[near][:, ::-1].astype(np.float64),
-                                           board.xy[near].astype(np.float64), 0)
+        homography, _ = cv2.findHomography(grid[near][:, ::-1].astype(np.float64), xy[near].astype(np.float64), 0)
         if homography is None or abs(np.linalg.det(homography)) < 1e-12:
             continue
         at = np.array([[cell[::-1], cell[::-1] + (1, 0), cell[::-1] + (0, 1)]], np.float64)  # (col, row), like (x, y)
@@ -74,7 +80,7 @@ def hole_boxes(preds: np.ndarray, steps: np.ndarray, shape: tuple[int, int]) -> 
     merged into the box around both: each box is one network call with its receptive halo
     (ccdn.session.ScoreSession.scores_in), and a board's holes often lie side by side."""
     h, w = shape
-    reach = np.ceil(_shorter(steps) + 1).astype(np.int64)
+    reach = np.ceil(shorter_step(steps) + 1).astype(np.int64)
     x, y = np.rint(preds[:, 0]).astype(np.int64), np.rint(preds[:, 1]).astype(np.int64)
     boxes = [[max(b - r, 0), min(b + r + 1, h), max(a - r, 0), min(a + r + 1, w)] for a, b, r in zip(x, y, reach)]
     merged = []
@@ -106,35 +112,35 @@ def filled_holes(gray: np.ndarray, board: Board, cells: np.ndarray, preds: np.nd
     own = board.xy[best_near(score, board.xy, 0) > 0]  # the board's corners the boxes cover
     if len(own) == 0:
         return none
-    step = _shorter(steps)
+    step = shorter_step(steps)
     peaks, values = [], []
     for pred, reach in zip(preds, step):
-        peak, value = _best_peak(score, pred, max(1, int(0.25 * reach)))
+        peak, value = best_peak(score, pred, max(1, int(0.25 * reach)))
         peaks.append(peak)
         values.append(value)
     values = np.array(values)
     strong = values >= HOLE_SCORE * median(best_near(score, own))
     fitted, ok = refine(gray, np.array(peaks, np.float64), "saddle", float(0.25 * step.max()),
                         window_for_spacing(float(median(step))))
-    ok &= _near_prediction(fitted, preds, step, gray.shape)
+    ok &= near_prediction(fitted, preds, step, gray.shape)
     if (again := strong & ~ok).any() and light_spread(light_levels(gray, board.xy.astype(np.float64),
                                                                     lattice_steps(board))) > SHADE_SPREAD:
         levelled_fit, moved = refined_across_shadows_edge(gray, preds[again], steps[again])
         fitted[again] = levelled_fit
-        ok[again] = moved & _near_prediction(levelled_fit, preds[again], step[again], gray.shape)
+        ok[again] = moved & near_prediction(levelled_fit, preds[again], step[again], gray.shape)
     ok &= strong
     if len(taken):
         ok &= np.linalg.norm(fitted[:, None] - taken[None], axis=2).min(1) >= 0.5 * step
     return cells[ok], fitted[ok].astype(np.float32), values[ok].astype(np.float32)
 
 
-def _near_prediction(fitted: np.ndarray, preds: np.ndarray, step: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+def near_prediction(fitted: np.ndarray, preds: np.ndarray, step: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """(K,) whether fits lie within HOLE_REACH x the shorter step of their predictions and
     EDGE_MARGIN inside a frame of `shape`."""
     return (vector_lengths(fitted - preds) <= HOLE_REACH * step) & inside_margin(fitted, shape)
 
 
-def _shorter(steps: np.ndarray) -> np.ndarray:
+def shorter_step(steps: np.ndarray) -> np.ndarray:
     """(K,) the shorter of the lattice steps (K, 4, 2) along the row and the column."""
     return np.minimum(vector_lengths(steps[:, 0]), vector_lengths(steps[:, 2]))
 
@@ -151,12 +157,3 @@ def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) ->
         a.setflags(write=False)
     return dataclasses.replace(board, corner_index=arrays[0], grid=arrays[1], xy=arrays[2])
 
-
-def _best_peak(score: np.ndarray, xy: np.ndarray, reach: int) -> tuple[np.ndarray, float]:
-    """The pixel (x, y) of the highest score within `reach` px (a square) of xy (on the frame), and that score."""
-    h, w = score.shape
-    x, y = int(round(xy[0])), int(round(xy[1]))
-    top, left = max(y - reach, 0), max(x - reach, 0)
-    window = score[top : min(y + reach + 1, h), left : min(x + reach + 1, w)]
-    row, col = np.unravel_index(int(window.argmax()), window.shape)
-    return np.array([left + col, top + row], np.float64), float(window[row, col])

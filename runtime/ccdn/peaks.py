@@ -52,6 +52,17 @@ def best_near(score: np.ndarray, xy: np.ndarray, reach: int = 1) -> np.ndarray:
     return score[row, col].reshape(len(xy), -1).max(1)
 
 
+def best_peak(score: np.ndarray, xy: np.ndarray, reach: int) -> tuple[np.ndarray, float]:
+    """The pixel (x, y) of the highest score within `reach` px (a square) of a point xy (on the map),
+    and that score."""
+    h, w = score.shape
+    x, y = int(round(xy[0])), int(round(xy[1]))
+    top, left = max(y - reach, 0), max(x - reach, 0)
+    window = score[top : min(y + reach + 1, h), left : min(x + reach + 1, w)]
+    row, col = np.unravel_index(int(window.argmax()), window.shape)
+    return np.array([left + col, top + row], np.float64), float(window[row, col])
+
+
 def suppress(xy: np.ndarray, radius: float) -> np.ndarray:
     """Greedy NMS on points sorted by descending score: True for points no kept stronger point is near.
 

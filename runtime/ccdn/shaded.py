@@ -1,0 +1,184 @@
+"""A board's part in deep shade, grown from the part the network found.
+
+Where a shadow takes most of the light from part of a board (the stress benchmark's shadow subset:
+80-95 %), the network's scores there fall below the peak threshold (one fresh render's 27 missed
+corners: 0.27-0.79 x the board's median) and the image tests of ccdn.grid fail along the shadow's
+soft edge, so the board is found without that part. None of its corners then lies in shade, so it
+is not lit unevenly (ccdn.shade.light_spread), but the shadow's edge runs across corners on its
+outline (ccdn.shade.across_shadows_edge). Such a board is grown outwards on the frame levelled
+around it (ccdn.shade.levelled), where the shaded squares look lit and the network scores them
+like lit ones (those 27: 0.74-1.16 x the median): round by round, each empty position next to the
+board along a row or column that lies in shade (its lightest quad lit at most 1 / SHADE_SPREAD as
+brightly as the board's corners' median) takes the saddle fit, on the levelled frame, of the
+network's best score there within a quarter step of its prediction (a homography fitted to the
+corners around it: ccdn.holes.predicted_cells), where that score is at least HOLE_SCORE x the
+board's median on the levelled frame, the fit lies within HOLE_REACH of a step of the prediction,
+and its four quads alternate in the board's colours, evenly (ccdn.grid.PAIR_RATIO), on the levelled
+frame: beyond a board's outline, where levelling makes the background look light, they do not
+(without that test a clutter line along a board's outline in shade took a false corner; without
+the shade test, 21 outline points of evenly lit boards in 120 renders).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .checker import Sampler, quad_differences
+from .edges import median_step
+from .grid import PAIR_RATIO, SHADE_SPREAD, Board, reoriented, row_col_neighbours
+from .holes import HOLE_SCORE, near_prediction, predicted_cells, shorter_step, with_corners
+from .peaks import best_near, best_peak
+from .refine import refine, window_for_spacing
+from .session import ScoreSession
+from .shade import across_shadows_edge, levelled, light_levels
+from .stats import median, nanmedian_rows, vector_lengths
+
+SHADE_MARGIN = 4  # squares: the levelled frame and the network's scores on it reach this far around the board
+
+
+def grown_into_shade(gray: np.ndarray, board: Board, steps: np.ndarray, levels: np.ndarray, session: ScoreSession,
+                     taken: np.ndarray, board_size: tuple[int, int] | None = None
+                     ) -> tuple[Board, np.ndarray, np.ndarray]:
+    """The board (its lattice steps (M, 4, 2: ccdn.edges.lattice_steps) and its corners' light
+    levels (4, M: ccdn.shade.light_levels)) grown into the deep shade next to it (module docstring)
+    where a shadow's edge runs across its corners: the board, its new corners indexed from len(taken)
+    on and its indices oriented again (ccdn.grid.reoriented; unchanged where it no longer fits
+    board_size), their positions (F, 2) and scores (F,: the network's, on the levelled frame).
+    taken: (N, 2) the corners found so far, which no new one may lie within half a step of."""
+    none = board, np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    lightest = np.fmax.reduce(levels, 0)[np.isfinite(levels).all(0)]
+    edge = across_shadows_edge(levels)
+    if not edge.any() or len(lightest) == 0:
+        return none
+    lit, square = median(lightest), median_step(steps)
+    h, w = gray.shape
+    margin = SHADE_MARGIN * square
+    low = np.maximum(np.floor(board.xy.min(0) - margin), 0).astype(int)
+    high = np.minimum(np.ceil(board.xy.max(0) + margin), [w - 1, h - 1]).astype(int)
+    grid, xy = board.grid.astype(np.int64), board.xy.astype(np.float64)
+    cells = _shaded_cells(gray, grid, xy, edge, lit, low + square, high - square)
+    if len(cells[0]) == 0:  # no shade next to the board: the look below is not made
+        return none
+    look = _LevelledLook(gray, board, steps, low, high, square, session)
+    if look.sign == 0:
+        return none
+    found_cells, found_xy, found_scores = [], [], []
+    while len(cells[0]):
+        ok, fitted, values = look.fits(*cells, np.concatenate([xy, taken.reshape(-1, 2)]))
+        if not ok.any():
+            break
+        grid, xy = np.concatenate([grid, cells[0][ok]]), np.concatenate([xy, fitted[ok]])
+        found_cells.append(cells[0][ok])
+        found_xy.append(fitted[ok])
+        found_scores.append(values[ok])
+        cells = _shaded_cells(gray, grid, xy, np.arange(len(grid)) >= len(grid) - ok.sum(), lit, low + square,
+                              high - square)
+    if not found_cells:
+        return none
+    held = _held(grid, np.arange(len(grid)) >= len(board))[len(board):]
+    cells, points = np.concatenate(found_cells)[held], np.concatenate(found_xy)[held].astype(np.float32)
+    grown = reoriented(with_corners(board, cells, points, len(taken)), look.sign, board_size) if held.any() else None
+    if grown is None:
+        return none
+    return grown, points, np.concatenate(found_scores)[held].astype(np.float32)
+
+
+def _shaded_cells(gray: np.ndarray, grid: np.ndarray, xy: np.ndarray, around: np.ndarray, lit: float,
+                  low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The empty cells next to the board's corners `around` (M,) (of grid (M, 2), xy (M, 2)) predicted
+    between (x, y) `low` and `high` (ccdn.holes.predicted_cells: cells, predictions, lattice steps)
+    whose lightest quad is lit at most 1 / SHADE_SPREAD as brightly as `lit`, the board's corners'
+    median: the board grows from the corners a shadow's edge runs across, then from those it took."""
+    cells, preds, steps = predicted_cells(grid, xy, _next_to(grid, around), gray.shape)
+    keep = ((preds >= low) & (preds <= high)).all(1)
+    keep[keep] = np.fmax.reduce(light_levels(gray, preds[keep], steps[keep]), 0) * SHADE_SPREAD <= lit
+    return cells[keep], preds[keep], steps[keep]
+
+
+class _LevelledLook:
+    """The frame levelled around a board (between (x, y) `low` and `high`; squares `square` px
+    across), the network's scores on it and the board's colours there (sign: _colours)."""
+
+    def __init__(self, gray: np.ndarray, board: Board, steps: np.ndarray, low: np.ndarray, high: np.ndarray,
+                 square: float, session: ScoreSession) -> None:
+        self.origin = low
+        self.flat = levelled(gray[low[1] : high[1] + 1, low[0] : high[0] + 1], square)
+        self.sampler = Sampler(self.flat)
+        self.sign = _colours(self.sampler, board, steps, low)
+        self.score = session.scores(self.flat) if self.sign else None
+        self.reference = median(best_near(self.score, board.xy - low)) if self.sign else 0.0
+        self.radius = window_for_spacing(square)
+        self.shape = gray.shape
+
+    def fits(self, cells: np.ndarray, preds: np.ndarray, steps: np.ndarray, taken: np.ndarray):
+        """For cells (K, 2) predicted at preds (K, 2) with lattice steps (K, 4, 2): whether each takes
+        its fit (module docstring; none within half a step of `taken` (N, 2)), the fits (K, 2) and their
+        scores (K,)."""
+        step = shorter_step(steps)
+        peaks, values = zip(*(best_peak(self.score, p - self.origin, max(1, int(0.25 * s)))
+                              for p, s in zip(preds, step)))
+        values = np.array(values)
+        fitted, ok = refine(self.flat, np.array(peaks), "saddle", float(0.25 * step.max()), self.radius)
+        fitted = fitted + self.origin
+        ok &= (values >= HOLE_SCORE * self.reference) & near_prediction(fitted, preds, step, self.shape)
+        ok &= vector_lengths(fitted[:, None] - taken[None]).min(1) >= 0.5 * step
+        ok &= _alternating(self.sampler, fitted - self.origin, steps, cells, self.sign)
+        return ok, fitted, values
+
+
+def _next_to(grid: np.ndarray, around: np.ndarray) -> np.ndarray:
+    """(K, 2) the empty (row, col) next to the board's corners `around` (M,) of those at `grid` (M, 2)
+    along a row or a column, also beyond its extent (indices may fall below 0)."""
+    filled, low = _canvas(grid)
+    centres, _ = _canvas(grid[around], low, filled.shape)
+    return np.argwhere((row_col_neighbours(centres) > 0) & ~filled) + low
+
+
+def _held(grid: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """(M,) the corners at `grid` (M, 2) kept once the `new` ones (M,) left with fewer than two
+    row/column neighbours are dropped, round after round (lone points on the outline, as ccdn.grid
+    drops them)."""
+    kept = np.ones(len(grid), bool)
+    while True:
+        filled, low = _canvas(grid[kept])
+        lone = kept & new & (row_col_neighbours(filled)[tuple((grid - low).T)] < 2)
+        if not lone.any():
+            return kept
+        kept &= ~lone
+
+
+def _canvas(grid: np.ndarray, low: np.ndarray | None = None, shape: tuple[int, ...] | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """A bool canvas of cells `grid` (M, 2) and the (row, col) of its (0, 0): by default with a free
+    cell around them, else from `low`, of `shape`."""
+    if low is None:
+        low = grid.min(0) - 1
+        shape = tuple(grid.max(0) - low + 2)
+    filled = np.zeros(shape, bool)
+    filled[tuple((grid - low).T)] = True
+    return filled, low
+
+
+def _colours(sampler: Sampler, board: Board, steps: np.ndarray, origin: np.ndarray) -> float:
+    """+1 where the quads of even row + col of the board's grid are light on the sampled frame, -1
+    where dark (0 where its corners do not tell): the sign of its corners' quad pair differences
+    with the grid's parity."""
+    ok = np.isfinite(steps[:, [0, 2], 0]).all(1)  # a step along its row and its column
+    diffs, _ = quad_differences(sampler, board.xy[ok] - origin, steps[ok, 0], steps[ok, 2])
+    told = nanmedian_rows(diffs) * _parity(board.grid[ok])
+    told = told[np.isfinite(told)]
+    return float(np.sign(median(told))) if len(told) else 0.0
+
+
+def _alternating(sampler: Sampler, xy: np.ndarray, steps: np.ndarray, cells: np.ndarray, sign: float) -> np.ndarray:
+    """(K,) whether the four quads around points xy (K, 2; lattice steps (K, 4, 2)) at `cells` alternate
+    in the board's colours (sign: _colours), the weakest pair at least PAIR_RATIO x the strongest."""
+    diffs, _ = quad_differences(sampler, xy, steps[:, 0], steps[:, 2])
+    signed = diffs * (_parity(cells) * sign)[:, None]
+    with np.errstate(invalid="ignore"):
+        return (signed.min(1) > 0) & (signed.min(1) >= PAIR_RATIO * signed.max(1))
+
+
+def _parity(cells: np.ndarray) -> np.ndarray:
+    """(K,) +1 for (row, col) of even row + col, -1 for odd."""
+    return np.where(cells.sum(1) % 2 == 0, 1.0, -1.0)
