@@ -7,16 +7,20 @@ soft edge, so the board is found without that part. None of its corners then lie
 is not lit unevenly (ccdn.shade.light_spread), but the shadow's edge runs across corners on its
 outline (ccdn.shade.across_shadows_edge). Such a board is grown outwards on the frame levelled
 around it (ccdn.shade.levelled), where the shaded squares look lit and the network scores them
-like lit ones (those 27: 0.74-1.16 x the median): round by round, each empty position next to the
-board along a row or column that lies in shade (its lightest quad lit at most 1 / SHADE_SPREAD as
-brightly as the board's corners' median) takes the saddle fit, on the levelled frame, of the
-network's best score there within a quarter step of its prediction (a homography fitted to the
-corners around it: ccdn.holes.predicted_cells), where that score is at least HOLE_SCORE x the
-board's median on the levelled frame, the fit lies within HOLE_REACH of a step of the prediction,
-and its four quads alternate in the board's colours, evenly (ccdn.grid.PAIR_RATIO), on the levelled
-frame: beyond a board's outline, where levelling makes the background look light, they do not
-(without that test a clutter line along a board's outline in shade took a false corner; without
-the shade test, 21 outline points of evenly lit boards in 120 renders).
+like lit ones (those 27: 0.74-1.16 x the median): round by round, from the corners the shadow's
+edge runs across and then from those taken, each empty position next to them along a row or
+column that lies in shade (its lightest quad lit at most 1 / SHADE_SPREAD as brightly as the
+board's corners' median) takes the saddle fit, on the levelled frame, of the network's best score
+there within a quarter step of its prediction (a homography fitted to the corners around it:
+ccdn.holes.predicted_cells), where that score is at least HOLE_SCORE x the median of the board's
+corners scored with it, the fit lies within HOLE_REACH of a step of the prediction, and its four
+quads alternate in the board's colours, evenly (ccdn.grid.PAIR_RATIO), on the levelled frame:
+beyond a board's outline, where levelling makes the background look light, they do not. New
+corners left with fewer than two row/column neighbours are dropped (lone points on an outline).
+Without the shade test, 21 outline points of evenly lit boards in 120 fresh renders were taken;
+without the alternation test or the lone points' drop, 1-2 outline points in shade with clutter
+along them. Measured (1300 cached stress renders and 120 fresh ones): 6 + 20 corners more, no false
+positive more, 0.15 px off their labels on average; a board pays 0.03 ms for the check.
 """
 
 from __future__ import annotations
