@@ -77,14 +77,14 @@ def light_spread(levels: np.ndarray) -> float:
     return quantile(light, 0.95) / max(quantile(light, 0.05), 1.0)
 
 
-def across_shadows_edge(levels: np.ndarray) -> np.ndarray:
+def across_shadows_edge(levels: np.ndarray, ratio: float = SHADOW_EDGE) -> np.ndarray:
     """(M,) whether a shadow's edge runs across each corner: its two light quads (light_levels
-    (4, M); the quads of one colour are 0 and 3, 1 and 2) differ by more than SHADOW_EDGE x in
-    grey level. Under one light they differ by the print's and the lens's shading only."""
+    (4, M); the quads of one colour are 0 and 3, 1 and 2) differ by more than `ratio` x in grey
+    level. Under one light they differ by the print's and the lens's shading only."""
     pairs = np.stack([np.fmax(levels[0], levels[3]), np.fmin(levels[0], levels[3]),
                       np.fmax(levels[1], levels[2]), np.fmin(levels[1], levels[2])])
     lighter = np.where(pairs[0] >= pairs[2], pairs[0] / np.maximum(pairs[1], 1.0), pairs[2] / np.maximum(pairs[3], 1.0))
-    return lighter > SHADOW_EDGE  # NaN (no steps, quads off the frame): not
+    return lighter > ratio  # NaN (no steps, quads off the frame): not
 
 
 def refined_across_shadows_edge(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

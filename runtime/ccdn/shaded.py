@@ -5,22 +5,26 @@ Where a shadow takes most of the light from part of a board (the stress benchmar
 corners: 0.27-0.79 x the board's median) and the image tests of ccdn.grid fail along the shadow's
 soft edge, so the board is found without that part. None of its corners then lies in shade, so it
 is not lit unevenly (ccdn.shade.light_spread), but the shadow's edge runs across corners on its
-outline (ccdn.shade.across_shadows_edge). Such a board is grown outwards on the frame levelled
-around it (ccdn.shade.levelled), where the shaded squares look lit and the network scores them
-like lit ones (those 27: 0.74-1.16 x the median): round by round, from the corners the shadow's
-edge runs across and then from those taken, each empty position next to them along a row or
-column that lies in shade (its lightest quad lit at most 1 / SHADE_SPREAD as brightly as the
-board's corners' median) takes the saddle fit, on the levelled frame, of the network's best score
-there within a quarter step of its prediction (a homography fitted to the corners around it:
-ccdn.holes.predicted_cells), where that score is at least HOLE_SCORE x the median of the board's
-corners scored with it, the fit lies within HOLE_REACH of a step of the prediction, and its four
-quads alternate in the board's colours, evenly (ccdn.grid.PAIR_RATIO), on the levelled frame:
-beyond a board's outline, where levelling makes the background look light, they do not. New
-corners left with fewer than two row/column neighbours are dropped (lone points on an outline).
-Without the shade test, 21 outline points of evenly lit boards in 120 fresh renders were taken;
-without the alternation test or the lone points' drop, 1-2 outline points in shade with clutter
-along them. Measured (1300 cached stress renders and 120 fresh ones): 5 + 20 corners more, no false
-positive more, 0.15 px off their labels on average; a board pays 0.03 ms for the check.
+outline: their two light quads differ by over SHADE_SPREAD x (ccdn.shade.across_shadows_edge; at
+the 1.2 x that marks a shadow's edge on a shaded board, two of the latency benchmark's 12 real
+photos, lit unevenly, paid 4-36 ms for a look that found nothing). Such a board is grown outwards
+on the frame levelled around it (ccdn.shade.levelled), where the shaded squares look lit and the
+network scores them like lit ones (those 27: 0.74-1.16 x the median). Round by round, from those
+corners and then from the ones taken, each empty position next to them along a row or column that
+lies in shade (its lightest quad lit at most 1 / SHADE_SPREAD as brightly as the board's corners'
+median) or in its penumbra (its own light quads differ by over SHADOW_EDGE) takes the saddle fit,
+on the levelled frame, of the network's best score there within a quarter step of its prediction
+(a homography fitted to the corners around it: ccdn.holes.predicted_cells), where that score is at
+least HOLE_SCORE x the median of the board's corners scored with it, the fit lies within
+HOLE_REACH of a step of the prediction, and its four quads alternate in the board's colours, evenly
+(ccdn.grid.PAIR_RATIO), on the levelled frame: beyond a board's outline, where levelling makes the
+background look light, they do not. New corners left with fewer than two row/column neighbours are
+dropped (lone points on an outline). Without the shade test, 21 outline points of evenly lit
+boards in 120 fresh renders were taken; without the alternation test or the lone points' drop, 1-2
+outline points in shade with clutter along them. Measured (1300 cached stress renders; 120 fresh
+ones): 308 -> 290 corners missed (shadow 71 -> 54), fresh shadow renders 2.38 -> 1.17 %, no false
+positive more, the new corners 0.0-0.45 px off their labels; a board pays 0.03 ms for the check, a
+shadow render's 5-7 ms (median) for the look.
 """
 
 from __future__ import annotations
@@ -51,7 +55,7 @@ def grown_into_shade(gray: np.ndarray, board: Board, steps: np.ndarray, levels: 
     taken: (N, 2) the corners found so far, which no new one may lie within half a step of."""
     none = board, np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
     lightest = np.fmax.reduce(levels, 0)[np.isfinite(levels).all(0)]
-    edge = across_shadows_edge(levels)
+    edge = across_shadows_edge(levels, SHADE_SPREAD)  # a deep shadow's (real photos' uneven light: under 2 x)
     if not edge.any() or len(lightest) == 0:
         return none
     lit, square = median(lightest), median_step(steps)
@@ -91,11 +95,13 @@ def _shaded_cells(gray: np.ndarray, grid: np.ndarray, xy: np.ndarray, around: np
                   low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The empty cells next to the board's corners `around` (M,) (of grid (M, 2), xy (M, 2)) predicted
     between (x, y) `low` and `high` (ccdn.holes.predicted_cells: cells, predictions, lattice steps)
-    whose lightest quad is lit at most 1 / SHADE_SPREAD as brightly as `lit`, the board's corners'
-    median: the board grows from the corners a shadow's edge runs across, then from those it took."""
+    in shade: whose lightest quad is lit at most 1 / SHADE_SPREAD as brightly as `lit`, the board's
+    corners' median, or across which a shadow's edge runs (ccdn.shade.across_shadows_edge: the
+    penumbra). The board grows from the corners a shadow's edge runs across, then from those it took."""
     cells, preds, steps = predicted_cells(grid, xy, _next_to(grid, around), gray.shape)
     keep = ((preds >= low) & (preds <= high)).all(1)
-    keep[keep] = np.fmax.reduce(light_levels(gray, preds[keep], steps[keep]), 0) * SHADE_SPREAD <= lit
+    levels = light_levels(gray, preds[keep], steps[keep])
+    keep[keep] = (np.fmax.reduce(levels, 0) * SHADE_SPREAD <= lit) | across_shadows_edge(levels)
     return cells[keep], preds[keep], steps[keep]
 
 
