@@ -6,7 +6,6 @@ import cv2
 import numpy as np
 import pytest
 
-import ccdn
 from conftest import calm_scene, stress_scene
 from ccdn.edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
 

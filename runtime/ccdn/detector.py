@@ -43,8 +43,8 @@ import cv2
 import numpy as np
 
 from .edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
-from .grid import SHADE_SPREAD, Board, find_boards, nearest_neighbours
-from .holes import filled_holes, hole_boxes, predicted_holes, with_corners
+from .grid import SHADE_SPREAD, Board, find_boards, nearest_neighbours, with_corners
+from .holes import filled_holes, hole_boxes, predicted_holes
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region, thinnest
 from .models import default_coarse_model

@@ -313,6 +313,13 @@ def largest_first(boards) -> list[Board]:
     return sorted(boards, key=lambda b: (-len(b), float(b.xy[:, 1].mean()), float(b.xy[:, 0].mean())))
 
 
+def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) -> Board:
+    """The board with corners at cells (F, 2) (inside its extent, or past it: then reoriented) and
+    positions xy (F, 2) added, indexed from `first` on."""
+    return _indexed_board(np.concatenate([board.corner_index, np.arange(first, first + len(cells))]),
+                          np.concatenate([board.grid, cells]), np.concatenate([board.xy, xy]))
+
+
 def reoriented(board: Board, sign: float, board_size: tuple[int, int] | None = None) -> Board | None:
     """The board indexed from 0 and oriented again as find_boards does (module docstring), for a
     grid that grew past its extent (indices below 0 or beyond cols / rows); sign: + where the quads

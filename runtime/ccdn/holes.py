@@ -21,8 +21,6 @@ of 480 renders; mean 3.2), one without 0.04 ms.
 
 from __future__ import annotations
 
-import dataclasses
-
 import cv2
 import numpy as np
 
@@ -100,60 +98,49 @@ def hole_boxes(preds: np.ndarray, steps: np.ndarray, shape: tuple[int, int]) -> 
 def filled_holes(gray: np.ndarray, board: Board, cells: np.ndarray, preds: np.ndarray, steps: np.ndarray,
                  score: np.ndarray, taken: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The holes (cells, preds, lattice steps: predicted_holes) that the full-resolution `score` map
-    (scored around them) fills: each hole's best score within a quarter step of its prediction,
-    scored >= HOLE_SCORE x the median of the board's corners the boxes cover; its saddle fit within
-    HOLE_REACH of a step of the prediction and EDGE_MARGIN inside the frame (as every board corner:
-    ccdn.grid.inside_margin), or, on a board lit unevenly (ccdn.shade.light_spread above
-    ccdn.grid.SHADE_SPREAD), the fit on the levelled frame where that one fails (a shadow's edge
-    across the corner pulls the saddle fit off it, or leaves no saddle: ccdn.shade); no closer than
-    half a step to a corner already `taken` (M, 2). Returns their cells (F, 2), positions (F, 2)
-    and scores (F,)."""
-    none = np.zeros((0, 2), np.int64), np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
-    own = board.xy[best_near(score, board.xy, 0) > 0]  # the board's corners the boxes cover
-    if len(own) == 0:
-        return none
+    (scored around them) fills: each hole's peak fit (peak_fits), placed (placed), or, on a board
+    lit unevenly (ccdn.shade.light_spread above ccdn.grid.SHADE_SPREAD), the fit on the levelled
+    frame where that one fails (a shadow's edge across the corner pulls the saddle fit off it, or
+    leaves no saddle: ccdn.shade). Returns their cells (F, 2), positions (F, 2) and scores (F,)."""
     step = shorter_step(steps)
-    peaks, values = [], []
-    for pred, reach in zip(preds, step):
-        peak, value = best_peak(score, pred, max(1, int(0.25 * reach)))
-        peaks.append(peak)
-        values.append(value)
-    values = np.array(values)
-    strong = values >= HOLE_SCORE * median(best_near(score, own))
-    fitted, ok = refine(gray, np.array(peaks, np.float64), "saddle", float(0.25 * step.max()),
-                        window_for_spacing(float(median(step))))
-    ok &= near_prediction(fitted, preds, step, gray.shape)
+    values, strong, fitted, ok = peak_fits(gray, score, preds, steps, board.xy, window_for_spacing(float(median(step))))
+    ok &= placed(fitted, preds, step, gray.shape, taken)
     if (again := strong & ~ok).any() and light_spread(light_levels(gray, board.xy.astype(np.float64),
                                                                     lattice_steps(board))) > SHADE_SPREAD:
         levelled_fit, moved = refined_across_shadows_edge(gray, preds[again], steps[again])
         fitted[again] = levelled_fit
-        ok[again] = moved & near_prediction(levelled_fit, preds[again], step[again], gray.shape)
+        ok[again] = moved & placed(levelled_fit, preds[again], step[again], gray.shape, taken)
     ok &= strong
-    if len(taken):
-        ok &= np.linalg.norm(fitted[:, None] - taken[None], axis=2).min(1) >= 0.5 * step
     return cells[ok], fitted[ok].astype(np.float32), values[ok].astype(np.float32)
 
 
-def near_prediction(fitted: np.ndarray, preds: np.ndarray, step: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(K,) whether fits lie within HOLE_REACH x the shorter step of their predictions and
-    EDGE_MARGIN inside a frame of `shape`."""
-    return (vector_lengths(fitted - preds) <= HOLE_REACH * step) & inside_margin(fitted, shape)
+def peak_fits(frame: np.ndarray, score: np.ndarray, preds: np.ndarray, steps: np.ndarray, board_xy: np.ndarray,
+              radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For predictions preds (K, 2) with lattice steps (K, 4, 2) on `frame` and its `score` map
+    (scored around them; board_xy (M, 2): the board's corners there): each one's best score within a
+    quarter step (K,), whether that is >= HOLE_SCORE x the median of the board's corners the scored
+    boxes cover (K,), and its saddle fit (window `radius`) on the frame (K, 2) and whether it
+    converged (K,)."""
+    step = shorter_step(steps)
+    peaks, values = zip(*(best_peak(score, p, max(1, int(0.25 * s))) for p, s in zip(preds, step)))
+    values = np.array(values)
+    own = board_xy[best_near(score, board_xy, 0) > 0]
+    strong = values >= HOLE_SCORE * median(best_near(score, own)) if len(own) else np.zeros(len(values), bool)
+    fitted, converged = refine(frame, np.array(peaks, np.float64), "saddle", float(0.25 * step.max()), radius)
+    return values, strong, fitted, converged
+
+
+def placed(fitted: np.ndarray, preds: np.ndarray, step: np.ndarray, shape: tuple[int, int],
+           taken: np.ndarray) -> np.ndarray:
+    """(K,) whether fits lie within HOLE_REACH x the shorter step of their predictions, EDGE_MARGIN
+    inside a frame of `shape` (as every board corner: ccdn.grid.inside_margin) and no closer than
+    half a step to a corner already `taken` (M, 2)."""
+    ok = (vector_lengths(fitted - preds) <= HOLE_REACH * step) & inside_margin(fitted, shape)
+    if len(taken):
+        ok &= vector_lengths(fitted[:, None] - taken[None]).min(1) >= 0.5 * step
+    return ok
 
 
 def shorter_step(steps: np.ndarray) -> np.ndarray:
     """(K,) the shorter of the lattice steps (K, 4, 2) along the row and the column."""
     return np.minimum(vector_lengths(steps[:, 0]), vector_lengths(steps[:, 2]))
-
-
-def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) -> Board:
-    """The board with corners at cells (F, 2) and positions xy (F, 2) added, indexed from `first` on,
-    its arrays in row-major order again and read-only."""
-    index = np.concatenate([board.corner_index, np.arange(first, first + len(cells))])
-    grid = np.concatenate([board.grid, cells.astype(np.int32)])
-    points = np.concatenate([board.xy, xy.astype(np.float32)])
-    order = np.lexsort((grid[:, 1], grid[:, 0]))
-    arrays = index[order], grid[order], points[order]
-    for a in arrays:
-        a.setflags(write=False)
-    return dataclasses.replace(board, corner_index=arrays[0], grid=arrays[1], xy=arrays[2])
-

@@ -33,13 +33,12 @@ import numpy as np
 
 from .checker import Sampler, quad_differences
 from .edges import median_step
-from .grid import PAIR_RATIO, SHADE_SPREAD, Board, reoriented, row_col_neighbours
-from .holes import HOLE_SCORE, hole_boxes, near_prediction, predicted_cells, shorter_step, with_corners
-from .peaks import best_near, best_peak
-from .refine import refine, window_for_spacing
+from .grid import PAIR_RATIO, SHADE_SPREAD, Board, reoriented, row_col_neighbours, with_corners
+from .holes import hole_boxes, peak_fits, placed, predicted_cells, shorter_step
+from .refine import window_for_spacing
 from .session import ScoreSession
 from .shade import across_shadows_edge, levelled, light_levels
-from .stats import median, nanmedian_rows, vector_lengths
+from .stats import median, nanmedian_rows
 
 SHADE_MARGIN = 4  # squares: the levelled frame and the network's scores on it reach this far around the board
 
@@ -127,16 +126,10 @@ class _LevelledLook:
         scored boxes cover; none within half a step of `taken` (N, 2)), the fits (K, 2) and their
         scores (K,)."""
         score = self.session.scores_in(self.flat, hole_boxes(preds - self.origin, steps, self.flat.shape))
-        own = board_xy - self.origin
-        own = own[best_near(score, own, 0) > 0]
-        step = shorter_step(steps)
-        peaks, values = zip(*(best_peak(score, p - self.origin, max(1, int(0.25 * s))) for p, s in zip(preds, step)))
-        values = np.array(values)
-        fitted, ok = refine(self.flat, np.array(peaks), "saddle", float(0.25 * step.max()), self.radius)
+        values, strong, fitted, ok = peak_fits(self.flat, score, preds - self.origin, steps, board_xy - self.origin,
+                                               self.radius)
         fitted = fitted + self.origin
-        reference = median(best_near(score, own)) if len(own) else np.inf
-        ok &= (values >= HOLE_SCORE * reference) & near_prediction(fitted, preds, step, self.shape)
-        ok &= vector_lengths(fitted[:, None] - taken[None]).min(1) >= 0.5 * step
+        ok &= strong & placed(fitted, preds, shorter_step(steps), self.shape, taken)
         ok &= _alternating(self.sampler, fitted - self.origin, steps, cells, self.sign)
         return ok, fitted, values
 
