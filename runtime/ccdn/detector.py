@@ -44,7 +44,7 @@ import numpy as np
 
 from .edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
 from .grid import SHADE_SPREAD, Board, find_boards, nearest_neighbours, with_corners
-from .holes import filled_holes, hole_boxes, predicted_holes
+from .holes import filled_holes, hole_boxes, predicted_holes, settled
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region, thinnest
 from .models import default_coarse_model
@@ -251,8 +251,9 @@ class Detector:
         found: tuple[Board, ...] = ()
         if self.filter == "grid" or boards or board_size is not None:
             complete = self.filter == "grid"
-            found = find_boards(gray, refined, values, board_size, complete=complete,
-                                uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0, shade_unfound=shade_unfound)
+            found = settled(find_boards(gray, refined, values, board_size, complete=complete,
+                                        uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0,
+                                        shade_unfound=shade_unfound), gray.shape)
             if complete:
                 refined, values = _with_completed(refined, values, found, score, scale)
             if complete or board_size is not None:

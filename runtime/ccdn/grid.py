@@ -316,7 +316,7 @@ def largest_first(boards) -> list[Board]:
 def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) -> Board:
     """The board with corners at cells (F, 2) (inside its extent, or past it: then reoriented) and
     positions xy (F, 2) added, indexed from `first` on."""
-    return _indexed_board(np.concatenate([board.corner_index, np.arange(first, first + len(cells))]),
+    return indexed_board(np.concatenate([board.corner_index, np.arange(first, first + len(cells))]),
                           np.concatenate([board.grid, cells]), np.concatenate([board.xy, xy]))
 
 
@@ -325,10 +325,10 @@ def reoriented(board: Board, sign: float, board_size: tuple[int, int] | None = N
     grid that grew past its extent (indices below 0 or beyond cols / rows); sign: + where the quads
     of even row + col of its grid are light. None where it no longer fits board_size."""
     grid = _orient(board.grid.astype(np.int64), board.xy, sign, board_size, False)
-    return None if grid is None else _indexed_board(board.corner_index, grid, board.xy)
+    return None if grid is None else indexed_board(board.corner_index, grid, board.xy)
 
 
-def _indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Board:
+def indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Board:
     """The read-only Board of corners idx (M,) at (row, col) grid (M, 2) from 0, positions points
     (M, 2), in row-major order."""
     order = np.lexsort((grid[:, 1], grid[:, 0]))
@@ -1446,4 +1446,4 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             if oriented is not None:
                 found.append((idx, oriented))
     points = np.concatenate([xy, np.reshape(added, (-1, 2))])
-    return tuple(largest_first([_indexed_board(idx, grid, points[idx]) for idx, grid in found]))
+    return tuple(largest_first([indexed_board(idx, grid, points[idx]) for idx, grid in found]))
