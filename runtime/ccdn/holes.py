@@ -168,29 +168,30 @@ def settled(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[Board, .
         cells, preds, steps = predicted_holes(boards[b], shape)
         for cell, pred, step in zip(cells, preds, shorter_step(steps)):
             for a, board in enumerate(boards):
-                if a == b or len(board) <= MIN_CORNERS:
+                k = None if a == b else _claimed(board, pred, step, shape)
+                if k is None:
                     continue
-                off = vector_lengths(board.xy - pred)
-                k = int(off.argmin())
                 rest = np.arange(len(board)) != k
-                if (off[k] > HOLE_REACH * step or (board.grid[rest].min(0) > 0).any()
-                        or (board.grid[rest].max(0) < board.grid.max(0)).any()
-                        or _own_fit(board, k, shape) <= off[k] / step):
-                    continue
-                moved = boards[b]
-                boards[b] = indexed_board(np.append(moved.corner_index, board.corner_index[k]),
-                                          np.concatenate([moved.grid, cell[None]]),
-                                          np.concatenate([moved.xy, board.xy[k : k + 1]]))
+                boards[b] = indexed_board(np.append(boards[b].corner_index, board.corner_index[k]),
+                                          np.concatenate([boards[b].grid, cell[None]]),
+                                          np.concatenate([boards[b].xy, board.xy[k : k + 1]]))
                 boards[a] = indexed_board(board.corner_index[rest], board.grid[rest], board.xy[rest])
                 break
     return tuple(largest_first(boards))
 
 
-def _own_fit(board: Board, k: int, shape: tuple[int, int]) -> float:
-    """How far the board's corner k lies from its board's prediction without it (predicted_cells),
-    in steps there; inf where the rest of the board predicts none."""
+def _claimed(board: Board, pred: np.ndarray, step: float, shape: tuple[int, int]) -> int | None:
+    """The board's corner that another board's hole predicted at `pred` (its shorter step there:
+    `step`) claims (settled): the nearest, within HOLE_REACH of that step, where the board keeps
+    more than MIN_CORNERS and its extent without it and predicts it worse itself; None otherwise."""
+    if len(board) <= MIN_CORNERS:
+        return None
+    off = vector_lengths(board.xy - pred)
+    k = int(off.argmin())
     rest = np.arange(len(board)) != k
-    cells, preds, steps = predicted_cells(board.grid[rest], board.xy[rest], board.grid[k : k + 1], shape)
-    if len(cells) == 0:
-        return np.inf
-    return float(vector_lengths(board.xy[k] - preds[0]) / shorter_step(steps)[0])
+    grid = board.grid[rest]
+    if off[k] > HOLE_REACH * step or grid.min(0).any() or (grid.max(0) < board.grid.max(0)).any():
+        return None
+    cells, preds, steps = predicted_cells(grid, board.xy[rest], board.grid[k : k + 1], shape)
+    own = vector_lengths(board.xy[k] - preds[0]) / shorter_step(steps)[0] if len(cells) else np.inf
+    return k if own > off[k] / step else None
