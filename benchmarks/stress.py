@@ -24,6 +24,10 @@ per image, median over the subset, after one warm-up call. For detectors that in
 wrongly indexed board silently corrupts a calibration. Steep views and small squares have corners a
 person can hardly see: each labelled corner's squares are measured (their narrowest width across,
 from the labels' lattice) and the missed share is also given per width class (`WIDTH_CLASSES`).
+Likewise per situation (`SITUATIONS`, from the labels alone): a corner in plain view, one beside a
+corner the render does not show (under an occluder or another board, or off the frame), one in a
+visible piece of its board under PIECE_CORNERS corners, one of squares under THIN_PX across; so a
+subset's misses tell corners anyone sees from those only a lattice's continuation vouches for.
 
     python benchmarks/stress.py [--per-subset 20] [--subsets clean noise] [--detectors ccdn opencv]
     python benchmarks/stress.py --skip 20   # the next 20 per subset: a held-out sample of the same conditions
@@ -56,6 +60,12 @@ SEED_BASE = 7_000_000
 SEEDS_PER_SUBSET = 10_000
 MIN_SPACING_PX = 3.0
 WIDTH_CLASSES = ((0.0, 4.0), (4.0, 6.0), (6.0, np.inf))  # px across a corner's narrowest square
+WIDTH_NAMES = tuple(f"{low:g}-{high:g} px" if np.isfinite(high) else f">= {low:g} px" for low, high in WIDTH_CLASSES)
+THIN_PX = WIDTH_CLASSES[0][1]  # squares thinner than this across: a steep view's slivers
+PIECE_CORNERS = 8  # a visible piece of a board under this many corners: too few to link into a board (ccdn's least)
+SITUATIONS = ("open", "beside a hidden corner", f"in a piece under {PIECE_CORNERS} corners",
+              f"squares under {THIN_PX:g} px")  # label_situations' classes, in its order
+_LATTICE_STEPS = ((-1, 0), (1, 0), (0, -1), (0, 1))
 CALM = dict(p_no_board=0.0, p_two_boards=0.0, square_px=(15.0, 60.0), max_tilt_deg=40.0, p_radial=0.0, p_fisheye=0.0,
             p_occluder=0.0, p_invert=0.0, p_blur=0.0, p_motion=0.0, p_defocus=0.0, p_noise=0.0, p_jpeg=0.0,
             p_low_contrast=0.0, p_dark=0.0, p_glare=0.0, p_shadow=0.0)
@@ -116,6 +126,46 @@ def square_widths(scene: Scene) -> np.ndarray:
         xy = scene.corners.astype(np.float64)
         np.minimum.at(widths, corner, altitude(xy[along_rows] - xy[corner], xy[along_cols] - xy[corner]))
     return widths
+
+
+def width_classes(widths: np.ndarray) -> np.ndarray:
+    """(M,) each corner's WIDTH_CLASSES index from its square_widths, -1 where none applies (a corner
+    without a labelled square around it)."""
+    classes = np.full(len(widths), -1)
+    for k, (low, high) in enumerate(WIDTH_CLASSES):
+        classes[(widths >= low) & (widths < high)] = k
+    return classes
+
+
+def label_situations(scene: Scene, widths: np.ndarray) -> np.ndarray:
+    """(M,) each labelled corner's SITUATIONS index, from the labels alone (widths: square_widths):
+    squares under THIN_PX across; else in a piece under PIECE_CORNERS corners (the corners of its
+    board the render shows, linked along rows and columns: a board behind another falls apart into
+    such pieces); else beside a hidden corner (a row or column neighbour inside its board that the
+    render does not show: under an occluder or another board, or off the frame); else open."""
+    visible = {(b, r, c): k for k, (b, (r, c)) in enumerate(zip(scene.board_index.tolist(), scene.grid.tolist()))}
+    hidden = np.zeros(len(scene.corners), bool)
+    piece = np.zeros(len(scene.corners), np.int64)  # how many corners each one's piece holds
+    for (b, r, c), k in visible.items():
+        cols, rows = scene.boards[b]
+        hidden[k] = any(0 <= r + dr < rows and 0 <= c + dc < cols and (b, r + dr, c + dc) not in visible
+                        for dr, dc in _LATTICE_STEPS)
+    unseen = set(visible)
+    while unseen:  # each piece by a flood fill over the visible corners
+        stack = [unseen.pop()]
+        members = []
+        while stack:
+            b, r, c = stack.pop()
+            members.append(visible[(b, r, c)])
+            for dr, dc in _LATTICE_STEPS:
+                if (b, r + dr, c + dc) in unseen:
+                    unseen.remove((b, r + dr, c + dc))
+                    stack.append((b, r + dr, c + dc))
+        piece[members] = len(members)
+    situation = hidden.astype(np.int64)
+    situation[piece < PIECE_CORNERS] = 2
+    situation[widths < THIN_PX] = 3
+    return situation
 
 
 def closest_spacing(scene: Scene) -> float:
@@ -206,22 +256,28 @@ def evaluate(sets: dict[str, list[tuple[int, Scene]]], adapters: list[Adapter], 
     for name, scenes in sets.items():
         radii = [match_radius(scene) for _, scene in scenes]
         widths = [square_widths(scene) for _, scene in scenes]  # the labels', alike for every detector
+        classes = [(width_classes(width), label_situations(scene, width))
+                   for (_, scene), width in zip(scenes, widths)]
         subsets[name] = {"overrides": SUBSETS[name], "min_radius_px": min(radii), "detectors": {}}
         for adapter in adapters:
             rows, times = [], []
-            for (seed, scene), radius, width in zip(scenes, radii, widths):
+            for (seed, scene), radius, (width, situation) in zip(scenes, radii, classes):
                 t0 = time.perf_counter()
                 xy = adapter.detect(scene.image, opencv_size(scene, fallback))
                 times.append((time.perf_counter() - t0) * 1e3)
                 rows.append(match(xy, scene.corners, scene.ignore, radius))
-                rows[-1]["missed_by_width"] = missed_by_width(xy, scene, width, radius)
+                rows[-1]["missed_by_width"] = missed_by_class(xy, scene, width, len(WIDTH_CLASSES), radius)
+                rows[-1]["missed_by_situation"] = missed_by_class(xy, scene, situation, len(SITUATIONS), radius)
                 if adapter.boards is not None:
                     rows[-1]["boards"], rows[-1]["wrong_index_boards"] = wrongly_indexed(adapter.boards(), scene, radius)
                 per_image.append({"subset": name, "seed": seed, "detector": adapter.name, "ms": times[-1],
                                   "radius_px": radius,
-                                  **{k: v for k, v in rows[-1].items() if k not in ("errors", "missed_by_width")}})
+                                  **{k: v for k, v in rows[-1].items()
+                                     if k not in ("errors", "missed_by_width", "missed_by_situation")}})
                 bar.update()
-            subsets[name]["detectors"][adapter.name] = {**summarise(rows), "missed_by_width": width_summary(rows),
+            by_class = {f"missed_by_{what}": class_summary(rows, f"missed_by_{what}", names)
+                        for what, names in (("width", WIDTH_NAMES), ("situation", SITUATIONS))}
+            subsets[name]["detectors"][adapter.name] = {**summarise(rows), **by_class,
                                                         "median_ms": float(np.median(times)),
                                                         "p90_ms": float(np.percentile(times, 90))}
             pooled[adapter.name] += rows
@@ -234,40 +290,43 @@ def evaluate(sets: dict[str, list[tuple[int, Scene]]], adapters: list[Adapter], 
                                  "the run's most common size"}
 
 
-def missed_by_width(xy: np.ndarray, scene: Scene, widths: np.ndarray, radius: float) -> list[tuple[int, int]]:
-    """(labels, missed) per WIDTH_CLASSES of the scene's corners (their square_widths): each class's
-    corners matched as the only labels, the other corners ignored (a detection near them counts
-    neither way)."""
+def missed_by_class(xy: np.ndarray, scene: Scene, classes: np.ndarray, count: int,
+                    radius: float) -> list[tuple[int, int]]:
+    """(labels, missed) for each class 0..count-1 of the scene's corners (classes (M,): width_classes or
+    label_situations): each class's corners matched as the only labels, the other corners ignored (a
+    detection near them counts neither way)."""
     counts = []
-    for low, high in WIDTH_CLASSES:
-        inside = (widths >= low) & (widths < high)
+    for k in range(count):
+        inside = classes == k
         others = np.concatenate([scene.ignore.reshape(-1, 2), scene.corners[~inside]])
         counts.append((int(inside.sum()), match(xy, scene.corners[inside], others, radius)["missed"]))
     return counts
 
 
-def width_summary(rows: list[dict]) -> dict[str, dict]:
-    """Per width class ("4-6 px"): its labels and the missed share of them, over a subset's images."""
+def class_summary(rows: list[dict], key: str, names: tuple[str, ...]) -> dict[str, dict]:
+    """Per class (by name): its labels and the missed share of them over a subset's images (rows'
+    missed_by_class counts under `key`)."""
     out = {}
-    for k, (low, high) in enumerate(WIDTH_CLASSES):
-        labels = sum(r["missed_by_width"][k][0] for r in rows)
-        missed = sum(r["missed_by_width"][k][1] for r in rows)
-        key = f"{low:g}-{high:g} px" if np.isfinite(high) else f">= {low:g} px"
-        out[key] = {"labels": labels, "missed_pct": 100.0 * missed / labels if labels else None}
+    for k, name in enumerate(names):
+        labels = sum(r[key][k][0] for r in rows)
+        missed = sum(r[key][k][1] for r in rows)
+        out[name] = {"labels": labels, "missed_pct": 100.0 * missed / labels if labels else None}
     return out
 
 
-def format_widths(result: dict) -> str:
-    """Missed % per width class for the subsets that have corners of squares under the widest class."""
+def format_classes(result: dict) -> str:
+    """Missed % per width class, for the subsets with corners of squares under the widest class, and per
+    situation, for the subsets where a detector missed any corner."""
     lines = []
     for name, sub in result["subsets"].items():
         for det, s in sub["detectors"].items():
-            classes = s["missed_by_width"]
-            if sum(c["labels"] for c in list(classes.values())[:-1]) == 0:
-                continue
-            cells = ", ".join(f"{key}: {c['missed_pct']:.1f} % of {c['labels']}" for key, c in classes.items()
-                              if c["labels"])
-            lines.append(f"{name:<14}{det:<16}missed by square width across: {cells}")
+            thin = sum(c["labels"] for c in list(s["missed_by_width"].values())[:-1])
+            for what, title, shown in (("width", "square width across", thin),
+                                       ("situation", "situation", s["missed_pct"])):
+                if shown:
+                    cells = ", ".join(f"{key}: {c['missed_pct']:.1f} % of {c['labels']}"
+                                      for key, c in s[f"missed_by_{what}"].items() if c["labels"])
+                    lines.append(f"{name:<14}{det:<16}missed by {title}: {cells}")
     return "\n".join(lines)
 
 
@@ -324,7 +383,7 @@ def main(argv: list[str] | None = None) -> None:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1))
     print(format_results(result))
-    print(format_widths(result))
+    print(format_classes(result))
     for name, note in {**result["config"]["detectors"], **skipped}.items():
         print(f"{name}: {note}")
     print(f"opencv board size: {result['opencv_board_size']}")

@@ -54,6 +54,7 @@ def test_stress_counts_a_clean_render_whole_and_a_boardless_one_empty(tmp_path, 
     widths = clean["missed_by_width"]  # a calm render's squares are all wide
     assert widths[">= 6 px"] == {"labels": clean["labels"], "missed_pct": 0.0}
     assert widths["0-4 px"]["labels"] == widths["4-6 px"]["labels"] == 0
+    assert clean["missed_by_situation"]["open"] == {"labels": clean["labels"], "missed_pct": 0.0}  # a calm board in view
 
 
 def test_square_widths_tell_a_steep_views_slivers_from_a_calm_boards_squares():
@@ -69,6 +70,28 @@ def test_square_widths_tell_a_steep_views_slivers_from_a_calm_boards_squares():
     apart = np.linalg.norm(calm.corners[:, None] - calm.corners[None], axis=2)
     np.fill_diagonal(apart, np.inf)
     assert np.allclose(square_widths(calm), apart.min(1), rtol=0.1)
+
+
+def test_label_situations_tell_plain_corners_from_hidden_neighbours_pieces_and_slivers():
+    """Two-boards render 7120536: a whole 10 x 10 board in front of an 11 x 4 one, of which 13 corners
+    show, in a piece of 5 and a piece of 8 (4 of those beside a corner the front board hides);
+    occluded render 7140745: an occluder cuts a piece of 4 corners off the rest and hides the
+    neighbours of 6 more; the sliver of extreme-pose render 7100061 has squares under 4 px across
+    (measured: 2-3 px); a calm board's corners are all in plain view."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from stress import SITUATIONS, label_situations, square_widths
+
+    def counts(subset: str, seed: int) -> list[list[int]]:
+        scene = stress_scene(subset, seed)
+        situation = label_situations(scene, square_widths(scene))
+        return [np.bincount(situation[scene.board_index == b], minlength=len(SITUATIONS)).tolist()
+                for b in range(len(scene.boards))]
+
+    assert SITUATIONS[0] == "open"
+    assert counts("two-boards", 7_120_536) == [[4, 4, 5, 0], [100, 0, 0, 0]]
+    assert counts("occluded", 7_140_745) == [[12, 6, 4, 0]]
+    assert counts("extreme-pose", 7_100_061) == [[0, 0, 0, 42]]
+    assert counts("clean", 7_000_004) == [[49, 0, 0, 0]]
 
 
 def test_accuracy_reports_the_paper_metrics_per_group(tmp_path):
