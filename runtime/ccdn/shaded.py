@@ -147,12 +147,14 @@ def _held(grid: np.ndarray, new: np.ndarray) -> np.ndarray:
     row/column neighbours are dropped, round after round (lone points on the outline, as ccdn.grid
     drops them)."""
     kept = np.ones(len(grid), bool)
+    filled, low = _canvas(grid)  # every cell's canvas: a dropped one may lie beyond the kept ones' margin
+    at = tuple((grid - low).T)
     while True:
-        filled, low = _canvas(grid[kept])
-        lone = kept & new & (row_col_neighbours(filled)[tuple((grid - low).T)] < 2)
+        lone = kept & new & (row_col_neighbours(filled)[at] < 2)
         if not lone.any():
             return kept
         kept &= ~lone
+        filled[tuple((grid[lone] - low).T)] = False
 
 
 def _canvas(grid: np.ndarray, low: np.ndarray | None = None, shape: tuple[int, ...] | None = None
