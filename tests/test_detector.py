@@ -95,6 +95,22 @@ def test_every_bundled_model_has_a_card_titled_with_its_name_and_version():
         assert info.name == name and title.startswith(f"# Model card: `{name}` {info.version}")
 
 
+@pytest.mark.parametrize("spinning", [True, False])
+def test_session_workers_never_spin_between_runs_and_not_at_all_without_spinning(spinning):
+    """A detector's two sessions each keep a thread pool: workers left spinning after one's run
+    slowed the other's (ccdn.session); spinning=False also keeps them from spinning within a run."""
+    from ccdn.session import ScoreSession
+
+    options = ScoreSession("fast", threads=2, spinning=spinning)._session.get_session_options()
+    assert options.get_session_config_entry("session.force_spinning_stop") == "1"
+    assert options.intra_op_num_threads == 2
+    if not spinning:
+        assert options.get_session_config_entry("session.intra_op.allow_spinning") == "0"
+    else:
+        with pytest.raises(Exception):  # not set: onnxruntime's default, spinning
+            options.get_session_config_entry("session.intra_op.allow_spinning")
+
+
 def test_default_models_are_int8_only_on_cpus_with_8bit_dot_products(monkeypatch):
     from ccdn import models
 
