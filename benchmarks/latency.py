@@ -66,8 +66,9 @@ def stats(samples: list[float]) -> dict:
     return {"median_ms": float(np.median(a)), "p10_ms": float(np.percentile(a, 10)), "p90_ms": float(np.percentile(a, 90))}
 
 
-SETTLE_S = 0.1  # a pause before each pass: a multi-threaded session's workers spin on ~30 ms after its last
-# run (measured), on the cores the next configuration's first frames would need
+SETTLE_S = 0.1  # a pause before each pass, so that no thread of the configuration before still spins on the
+# cores the next one's first frames need (onnxruntime's workers spun ~30 ms after a run, measured, until
+# ccdn.session stopped them at the run's end; other pools, such as OpenCV's that SB uses, may still)
 
 
 def time_detectors(detectors: list[ccdn.Detector], frames: list[np.ndarray], repeat: int) -> list[dict]:
