@@ -91,8 +91,9 @@ class Detector:
     coarse_model: the model of the shrunk passes of coarse-to-fine: by default
     ccdn.models.default_coarse_model() ("fast-int8" on CPUs with VNNI, "fast" elsewhere) when `model`
     is not named (the default cascade, module docstring), else `model` itself.
-    threads: intra-op threads (default: available CPUs, capped at 4). spinning: False keeps idle
-    threads from busy-waiting, for apps that share the CPU.
+    threads: intra-op threads (default: available CPUs, capped at 4). The workers never busy-wait
+    between network runs (ccdn.session); spinning=False keeps them from it within a run too, for
+    apps that share the CPU.
     relative, floor: keep score peaks >= max(relative * max score, floor). Default: 0.4 and 0.25 with
     the grid filter, which rejects the clutter a lower threshold lets in (measured on the stress
     renders: missed 2.5 -> 1.7 %, motion blur 10 -> 1 %, for 10-17 % more time), the paper's 0.5

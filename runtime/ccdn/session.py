@@ -85,8 +85,9 @@ class ScoreSession:
             options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         # workers spin between a run's nodes only, not after it: a detector runs two sessions (the shrunk
         # passes' and the full frame's), each with its own pool, and one's workers still spinning slowed
-        # the other's run and the NumPy stages on 2 cores (stress renders that need the full-frame pass:
-        # mean 37.0 -> 29.5 ms per render, p90 95 -> 69; frames the shrunk pass serves as fast as before)
+        # the other's runs on 2 cores (measured: stress renders that need the full-frame pass, mean 37-38
+        # -> 30 ms, p90 94-95 -> 71-73; frames the shrunk pass serves, median within noise, best-of ~0.3 ms
+        # more when they come back to back: its worker now sleeps between them)
         options.add_session_config_entry("session.force_spinning_stop", "1")
         # e.g. the int8 models keep their first pool in float32 and name the transformer that would undo it
         disabled = [name for name in meta.get("disabled_optimizers", "").split(",") if name]
