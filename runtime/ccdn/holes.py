@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 
 from .edges import lattice_steps
-from .grid import MIN_CORNERS, SHADE_SPREAD, Board, hole_cells, indexed_board, inside_margin, largest_first
+from .grid import (MIN_CORNERS, SHADE_SPREAD, Board, hole_cells, indexed_board, inside_margin, largest_first,
+                   with_corners)
 from .peaks import best_near, best_peak
 from .refine import refine, window_for_spacing
 from .shade import light_levels, light_spread, refined_across_shadows_edge
@@ -172,9 +173,7 @@ def settled(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[Board, .
                 if k is None:
                     continue
                 rest = np.arange(len(board)) != k
-                boards[b] = indexed_board(np.append(boards[b].corner_index, board.corner_index[k]),
-                                          np.concatenate([boards[b].grid, cell[None]]),
-                                          np.concatenate([boards[b].xy, board.xy[k : k + 1]]))
+                boards[b] = with_corners(boards[b], cell[None], board.xy[k : k + 1], int(board.corner_index[k]))
                 boards[a] = indexed_board(board.corner_index[rest], board.grid[rest], board.xy[rest])
                 break
     return tuple(largest_first(boards))
