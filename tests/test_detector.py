@@ -267,7 +267,7 @@ def test_a_board_whose_squares_thin_too_much_on_the_halved_frame_gets_the_full_r
     middle and a few px across at its rim, where `fast` cannot follow them; kept, that pass found 61
     of the 77 corners (67 since completion's loose fits, session 38). Its thinnest squares under
     THIN_SQUARE send the frame on: 76 (all 77 before session 39 refused the second chance to crowded
-    corners whose wide-sampled quads are mixed, ccdn.grid.CROWDED: a rim corner 8 px from the next),
+    corners whose wide-sampled quads are mixed, ccdn.growth.CROWDED: a rim corner 8 px from the next),
     every one a true corner. (Kept, the pass would also have its holes looked at, ccdn.holes: left
     out here, for the halved frame alone.)"""
     from ccdn import detector as detector_module
@@ -373,7 +373,7 @@ def test_a_steep_boards_narrow_squares_are_completed():
     """At 60-75 degrees of tilt a board's squares can be narrower than the saddle fit's window, which
     then spans the neighbouring corners' edges and finds no saddle: on the stress set's extreme-pose
     render 7100104 grid completion found 15 of 54 corners (measured). Predicted corners of squares
-    narrower than ccdn.grid.NARROW_ALTITUDE windows are fitted again with the narrowest window."""
+    narrower than ccdn.completion.NARROW_ALTITUDE windows are fitted again with the narrowest window."""
     scene = stress_scene("extreme-pose", 7_100_104)
     found = ccdn.Detector(threads=2).detect(scene.image).xy
     assert (nearest_distances(found, scene.corners) < 1.5).sum() >= 48
@@ -383,7 +383,7 @@ def test_a_steep_boards_narrow_squares_are_completed():
 def test_a_board_is_not_grown_into_cells_flatter_than_a_seed_square():
     """At 60-75 degrees of tilt a board's squares thin to slivers whose tips, where two squares of one
     colour nearly touch, score like corners; grown into cells flatter than a seed square may be
-    (sine of the lattice steps' angle <= ccdn.grid.MIN_SINE), a board took a lattice of such tips:
+    (sine of the lattice steps' angle <= ccdn.lattice.MIN_SINE), a board took a lattice of such tips:
     on the stress set's extreme-pose render 7100021, 16 of a 25-corner board's corners lay 2-4 px
     from every true corner. A steep board whose cells stay above that (render 7100050, sines down to
     0.45) is still found whole."""
@@ -403,7 +403,7 @@ def test_corners_under_a_shadows_edge_are_completed():
     completion's strict image test failed there (the stress set's shadow render 7160017: 23 of 77
     corners missed, measured). The test also passes on the quads sampled close to the corner, where
     the light varies less, if the corner's contrast shows it lies in other light than the seed's
-    (ccdn.grid.SHADED_CONTRAST)."""
+    (ccdn.completion.SHADED_CONTRAST)."""
     scene = stress_scene("shadow", 7_160_017)
     found = ccdn.Detector(threads=2).detect(scene.image).xy
     assert len(scene.corners) == 77
@@ -436,10 +436,10 @@ def test_a_board_continues_past_a_line_the_shadows_edge_hides(monkeypatch):
     line, where the quads alternate at their centres (ccdn.grid's _beyond): 21 then, the 4 more in
     the shade, in the same board, every one a true corner, the line between them empty. Since
     session 38 completion also fits corners there where only growth's plain test passes and their
-    half-edges are even (ccdn.grid.LOOSE_EDGES): 25, the line filled but for one."""
+    half-edges are even (ccdn.completion.LOOSE_EDGES): 25, the line filled but for one."""
     scene = stress_scene("shadow", 7_160_200)
     for loose_edges, least, gap in ((0.6, 25, 1), (1.1, 21, 2)):  # 1.1: no loose fit passes
-        monkeypatch.setattr("ccdn.grid.LOOSE_EDGES", loose_edges)
+        monkeypatch.setattr("ccdn.completion.LOOSE_EDGES", loose_edges)
         found = ccdn.Detector(threads=2).detect(scene.image)
         assert len(scene.corners) == 27 and len(found.boards) == 1
         board = found.boards[0]
@@ -454,7 +454,7 @@ def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
     saddle fit finds it on either scale (the stress set's shadow render 7160182: 14 of 24 corners,
     measured, the rest along and beyond the shadow's edge). Completion then takes the crossing of
     the corner's lattice lines fitted to its squares' edges on the log scale, where each of its
-    four half-edges shows at least half the strongest one's contrast (ccdn.grid.EVEN_EDGES; on a
+    four half-edges shows at least half the strongest one's contrast (ccdn.completion.EVEN_EDGES; on a
     board's outline one runs into the margin): at least 21 true corners now, in one board (the
     saddle fits alone: 20, 14 before prune kept corners whose other neighbours the shadow hides)."""
     scene = stress_scene("shadow", 7_160_182)
@@ -463,7 +463,7 @@ def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
     off = nearest_distances(scene.corners, found.xy)  # each found corner's distance to the nearest true one
     assert (off < 1.5).sum() >= 21 and np.median(off) < 0.1
     assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 21
-    monkeypatch.setattr("ccdn.grid.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone ...
+    monkeypatch.setattr("ccdn.completion.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone ...
     monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # ... of the grid (21 with ccdn.holes' look
     monkeypatch.setattr("ccdn.detector.grown_into_shade", no_growth_into_shade)  # or with ccdn.shaded's growth)
     assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 20
@@ -474,20 +474,20 @@ def test_a_gap_on_a_shadows_edge_is_filled_from_its_edge_lines(monkeypatch):
     at their predictions (a quad half lit, or a lit dark square lighter than a shaded light one): the
     board grows around them and leaves a gap (the stress set's shadow render 7160033: 73 of 81
     corners, measured). Where the board holds a prediction's neighbours on both sides and its quads
-    look like the board's in shade, the edge-line fit is asked directly (ccdn.grid._on_shadows_edge):
+    look like the board's in shade, the edge-line fit is asked directly (ccdn.completion.Completion._on_shadows_edge):
     77 now, every one a true corner (with `fast` 1.1.0 on the halved frame: 75 without that fit; the
     search on the levelled frame, which this board's shadow also calls for, is left out here, and so is
-    the network vouching for corners: _Grower.vouch took one of them without that fit, and so is the
+    the network vouching for corners: Grower.vouch took one of them without that fit, and so is the
     full-resolution look at the holes: ccdn.holes)."""
     monkeypatch.setattr("ccdn.grid.SHADE_SPREAD", np.inf)
     monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)
-    monkeypatch.setattr("ccdn.grid.VOUCH_SCORE", np.inf)
+    monkeypatch.setattr("ccdn.growth.VOUCH_SCORE", np.inf)
     scene = stress_scene("shadow", 7_160_033)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 81 and len(found.boards) == 1
     assert (nearest_distances(scene.corners, found.xy) < 1.5).all()  # each found corner near a true one
     assert (nearest_distances(found.xy, scene.corners) < 1.5).sum() >= 77  # true corners found
-    monkeypatch.setattr("ccdn.grid._Grower._on_shadows_edge", lambda self, cells, *rest: np.zeros(len(cells), bool))
+    monkeypatch.setattr("ccdn.completion.Completion._on_shadows_edge", lambda self, cells, *rest: np.zeros(len(cells), bool))
     monkeypatch.setattr("ccdn.detector.grown_into_shade", no_growth_into_shade)  # (77 with ccdn.shaded's growth)
     assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 75
 
@@ -499,7 +499,7 @@ def test_a_board_across_a_soft_shadows_edge_is_found_on_the_levelled_frame(monke
     A board lit that unevenly (ccdn.shade.light_spread above ccdn.grid.SHADE_SPREAD) is searched for
     again on the frame divided by its light level (ccdn.shade.levelled): all 44, indexed as they
     are, each within 1.2 px of its true place (without: 35 since prune keeps the corners whose other
-    neighbours the shadow hides, ccdn.grid._Grower._hidden_around)."""
+    neighbours the shadow hides, ccdn.cleanup.Cleanup._hidden_around)."""
     scene = stress_scene("shadow", 7_160_393)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 44 and len(found.boards) == 1 and len(found) == 44
@@ -622,7 +622,7 @@ def test_corners_across_a_shadows_edge_are_fitted_again_on_the_levelled_frame(mo
 def test_a_steep_views_narrow_squares_complete_without_taking_the_tips_between_them():
     """A board tilted ~70 degrees: sheared squares 4.5-6 px across, the network's peaks on part of
     them (the stress set's extreme-pose render 7100011: 40 of 156 corners before). Completion's saddle
-    fit gets the narrow window's second try there (ccdn.grid.NARROW_ALTITUDE), and growth matches
+    fit gets the narrow window's second try there (ccdn.completion.NARROW_ALTITUDE), and growth matches
     within 1.5 x the cells' height, not 0.3 of their long step (SLIVER_REACH), which a tip between two
     squares of one colour lay within: without it the board took 38 such tips, wrongly indexed."""
     scene = stress_scene("extreme-pose", 7_100_011)
@@ -656,7 +656,7 @@ def test_a_steep_boards_far_slivers_are_found_magnified(monkeypatch):
 
 def test_a_sliver_board_no_pass_links_is_found_stretched(monkeypatch):
     """The stress set's extreme-pose render 7100061: a board seen so steeply that its cells are sheared
-    past what a lattice is grown over (sines 0.23-0.29 < ccdn.grid.MIN_SINE) and its squares are 2-3 px
+    past what a lattice is grown over (sines 0.23-0.29 < ccdn.lattice.MIN_SINE) and its squares are 2-3 px
     across: no pass finds any of its 42 corners. The sliver-shaped cluster of score peaks there, looked
     at stretched 3x across its long axis (ccdn.magnify.stretched), gives the whole board, every corner
     within 1 px of the truth (measured: mean 0.14, max 0.51 px), indexed right; exhaustive detection,

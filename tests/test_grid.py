@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from ccdn.checker import Sampler
-from ccdn.grid import Board, _Grower, find_boards, hole_cells, nearest_neighbours
+from ccdn.grid import Board, find_boards, hole_cells, nearest_neighbours
+from ccdn.growth import Grower
 from conftest import calm_scene, index_map, nearest_distances, no_holes, stress_scene
 
 synth = pytest.importorskip("ccdn_training.synth")
@@ -203,7 +204,7 @@ def test_a_flat_board_grows_ring_at_once_from_its_seed_square():
     """Before any local round, the homography growth alone fills a flat board (the speed-up)."""
     for scene in whole_boards(2, board_sizes=((9, 6),), max_tilt_deg=35.0):
         xy = scene.corners.astype(np.float64)
-        grower = _Grower(xy, np.ones(len(xy), bool), Sampler(scene.image), np.sqrt(nearest_neighbours(xy, 1)[1][:, 0]))
+        grower = Grower(xy, np.ones(len(xy), bool), Sampler(scene.image), np.sqrt(nearest_neighbours(xy, 1)[1][:, 0]))
         at = {(int(r), int(c)): k for k, (r, c) in enumerate(scene.grid)}
         square = [at[(2, 3)], at[(2, 4)], at[(3, 3)], at[(3, 4)]]
         (ux, uy), (vx, vy) = xy[square[1]] - xy[square[0]], xy[square[2]] - xy[square[0]]
@@ -464,7 +465,7 @@ def test_a_board_does_not_wander_off_its_lattice_where_its_lines_would_turn_shar
     squares of one colour nearly touch, and growth, each step within its tolerance, wandered from the
     true lattice onto theirs: the stress set's extreme-pose render 7100011 gave one board of 57
     corners, 23 of them tips 2.8-5 px from any true corner, its rows turning by up to 100 degrees.
-    Lines may turn no more than ccdn.grid.MAX_TURN: what is left is the true lattice, indexed as it is."""
+    Lines may turn no more than ccdn.cleanup.MAX_TURN: what is left is the true lattice, indexed as it is."""
     import ccdn
     scene = stress_scene("extreme-pose", 7_100_011)
     (board,) = ccdn.Detector(threads=2).detect(scene.image).boards
@@ -479,7 +480,7 @@ def test_a_board_does_not_take_corners_of_the_board_beside_it(seed):
     centres too, so the plain image test passed there: in the stress set's two-boards render
     7120744 a board of 45 px squares grew onto 16 corners of its 21 px-square neighbour, and in
     7120467 one board took the other's outermost corner where its own is hidden. Growth also wants
-    quads uniform where a seed's are sampled (ccdn.grid.WIDE_SPREAD): every board holds corners of
+    quads uniform where a seed's are sampled (ccdn.growth.WIDE_SPREAD): every board holds corners of
     one true board only, indexed as they are."""
     import ccdn
     scene = stress_scene("two-boards", seed)
@@ -497,7 +498,7 @@ def test_a_board_half_in_deep_shadow_is_one_board(seed, detected):
     of a board a fifth to a twentieth of the lit part's contrast, and across its edge two of a
     corner's quads darken: judged on the grey scale against the seed's contrast, the shaded corners
     failed the image test, and these two boards, given their true corners, came out as two boards
-    each (31 + 27 and 53 + 24 corners, indexed apart). On the log scale (ccdn.grid.SHADE_OFFSET) each is one
+    each (31 + 27 and 53 + 24 corners, indexed apart). On the log scale (ccdn.lattice.SHADE_OFFSET) each is one
     board of every corner, indexed as it is. The detector, from its own peaks, finds one board of
     all 60 and of 73 of the 77 (4 on the shadow's edge are missed); before, boards of 28 + 21 and
     28 + 24 + 13 corners."""
@@ -517,8 +518,8 @@ def test_a_board_under_a_soft_shadow_is_searched_for_again_on_the_levelled_frame
     the log scale. That part is lit unevenly (ccdn.shade.light_spread 7.4 > ccdn.grid.SHADE_SPREAD),
     so the search runs again on the levelled frame: 53, indexed as they are. (The image tests alone:
     the given corners all score 1, and the network would vouch for every one the board holds on two
-    sides: _Grower.vouch.)"""
-    monkeypatch.setattr("ccdn.grid.VOUCH_SCORE", np.inf)
+    sides: Grower.vouch.)"""
+    monkeypatch.setattr("ccdn.growth.VOUCH_SCORE", np.inf)
     scene = stress_scene("shadow", 7_160_406)
     (board,) = find_boards(scene.image, scene.corners, np.ones(len(scene.corners)), complete=True)
     assert len(board) == 53 and (board.corner_index < len(scene.corners)).all()
@@ -563,7 +564,7 @@ def test_a_board_behind_another_seeds_where_two_corners_of_each_square_are_cover
     allowed one such corner at most, so it was lost (18 of its corners, every one with a network
     peak). Once a board is found, a last round of seeds allows two (ccdn.grid.BEHIND_UNEVEN): 11 of
     them, in a second board of one true board, indexed as it is (12 when found, 13 while the network
-    vouched for one next to the front board, _Grower.vouch, and before two crowded by the front
+    vouched for one next to the front board, Grower.vouch, and before two crowded by the front
     board's outline points, whose wide-sampled quads it covers, lost their second chance)."""
     import ccdn
     scene = stress_scene("two-boards", 7_120_041)
@@ -579,14 +580,14 @@ def test_two_boards_grown_into_one_through_their_seam_are_split_at_it(monkeypatc
     outline of the front board lies on the board behind, whose squares make two points of it
     alternate like corners; growth took them and walked on onto the back board's lattice: one board
     of 108 corners, wrongly indexed, the two seam points false. Their row is a bridge (2 corners
-    between lines of 13 and 6: ccdn.grid.BRIDGE): the board is cut there and the larger side kept;
+    between lines of 13 and 6: ccdn.cleanup.BRIDGE): the board is cut there and the larger side kept;
     the other side is found as a board of its own. Both indexed as they are, no false corner."""
     import ccdn
     scene = stress_scene("two-boards", 7_120_937)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert [len(board) for board in boards] == [54, 52]
     assert all(_true_board(board, scene, 0.2) for board in boards)
-    monkeypatch.setattr("ccdn.grid.BRIDGE", 0.0)
+    monkeypatch.setattr("ccdn.cleanup.BRIDGE", 0.0)
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [108]
 
 
@@ -612,14 +613,14 @@ def test_a_corner_whose_quad_the_other_board_covers_completes_where_its_half_edg
     """In the stress set's two-boards render 7120213 (README sample) the back board's corner next to
     the front board has no network peak, and completion's strict test fails at its prediction: the
     front board covers part of one quad. Growth's plain test (one quad may be hidden) passes there,
-    and the fit is taken where its four half-edges are even (ccdn.grid.LOOSE_EDGES): 41 of the back
+    and the fit is taken where its four half-edges are even (ccdn.completion.LOOSE_EDGES): 41 of the back
     board's corners instead of 40, every one in one board, indexed as it is, within 0.15 px."""
     import ccdn
     scene = stress_scene("two-boards", 7_120_213)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert [len(board) for board in boards] == [54, 41]
     assert all(_true_board(board, scene, 0.15) for board in boards)
-    monkeypatch.setattr("ccdn.grid.LOOSE_EDGES", 1.1)  # no half-edge that even: the strict test alone
+    monkeypatch.setattr("ccdn.completion.LOOSE_EDGES", 1.1)  # no half-edge that even: the strict test alone
     monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # (ccdn.holes' look takes it too)
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [54, 40]
 
@@ -629,14 +630,14 @@ def test_the_network_vouches_for_a_corner_whose_quads_an_occluder_covers(monkeyp
     covers part of the quads of one of the board's corners: every image test fails there, so the
     board held 67 of its 68 corners, though the network's peak lies on the corner. The pruned board
     holds that position on two sides, and the peak lies within 0.05 of a step of the grid's
-    prediction, scored like the board's corners (ccdn.grid.VOUCH_REACH, VOUCH_SCORE): every corner
+    prediction, scored like the board's corners (ccdn.growth.VOUCH_REACH, VOUCH_SCORE): every corner
     now, in one board, indexed as it is, each within 0.11 px of its label."""
     import ccdn
     scene = stress_scene("occluded", 7_141_116)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert len(scene.corners) == 68 and [len(board) for board in boards] == [68]
     assert _true_board(boards[0], scene, 0.11)
-    monkeypatch.setattr("ccdn.grid.VOUCH_SCORE", np.inf)
+    monkeypatch.setattr("ccdn.growth.VOUCH_SCORE", np.inf)
     monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # (ccdn.holes' look takes it too)
     assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [67]
 
@@ -645,7 +646,7 @@ def test_a_corner_kept_where_an_occluder_hides_its_neighbours_links_its_line_in_
     """In the stress set's occluded render 7140830 (fresh renders, seeds from the 60th on) an occluder
     hides a row of the board; beyond it a row of three corners shows. Prune kept the first of them
     (its row holds a corner of two neighbours, the middle one, its column the board's corners, its
-    half-edges are even: ccdn.grid._Grower._hidden_around) and dropped the last, whose column holds
+    half-edges are even: ccdn.cleanup.Cleanup._hidden_around) and dropped the last, whose column holds
     none; the middle one then had one neighbour, and the next round dropped both: each one's row
     held only the other, neither counted as linked. A kept corner counts as linked in later rounds:
     24 of the 27 corners, one board, indexed as it is (22 before); 25 since the halved frame's
@@ -664,7 +665,7 @@ def test_a_crowded_corner_whose_wide_quads_are_mixed_gets_no_second_chance(monke
     on a larger one, and the larger board took one of its corners near its own hidden ones (a wrongly
     indexed board); in 7120896 a board's outline next to a grid of thin lines took 2 false corners.
     A point with another within CROWDED of the shorter step must have quads uniform where a seed's
-    are sampled to pass at all (ccdn.grid.WIDE_SPREAD): both boards of each render on one true board,
+    are sampled to pass at all (ccdn.growth.WIDE_SPREAD): both boards of each render on one true board,
     indexed as they are, and no false corner; without the crowded test (CROWDED 0) as before."""
     import ccdn
     # a corner the front board half covers, unlabelled, joins a board by ccdn.holes' look: left out here;
@@ -674,13 +675,13 @@ def test_a_crowded_corner_whose_wide_quads_are_mixed_gets_no_second_chance(monke
     for seed in (7_120_620, 7_121_496):
         scene = stress_scene("two-boards", seed)
         for crowded, right in ((0.75, True), (0.0, False)):
-            monkeypatch.setattr("ccdn.grid.CROWDED", crowded)
+            monkeypatch.setattr("ccdn.growth.CROWDED", crowded)
             boards = ccdn.Detector(threads=2).detect(scene.image).boards
             assert len(boards) == 2 and all(_true_board(board, scene, 1.5) for board in boards) == right
     scene = stress_scene("two-boards", 7_120_896)
     labelled = np.concatenate([scene.corners, scene.ignore])
     for crowded, false in ((0.75, 0), (0.0, 2)):
-        monkeypatch.setattr("ccdn.grid.CROWDED", crowded)
+        monkeypatch.setattr("ccdn.growth.CROWDED", crowded)
         found = ccdn.Detector(threads=2).detect(scene.image)
         assert (nearest_distances(labelled, found.xy) > 2.5).sum() == false
 
@@ -706,7 +707,7 @@ def test_the_corners_an_occluder_leaves_one_neighbour_stay(seed, hidden, monkeyp
     along its row: prune dropped it as a lone point on the outline, then the corner before it (the
     stress set's occluded renders 7140525 and 7140813: 3 and 4 corners so lost). Their row and
     column hold other corners of the board and their four half-edges are even
-    (ccdn.grid._Grower._hidden_around): every labelled corner is found, indexed right."""
+    (ccdn.cleanup.Cleanup._hidden_around): every labelled corner is found, indexed right."""
     import ccdn
     scene = stress_scene("occluded", seed)
     found = ccdn.Detector(threads=2).detect(scene.image)
@@ -715,13 +716,13 @@ def test_the_corners_an_occluder_leaves_one_neighbour_stay(seed, hidden, monkeyp
     board = found.boards[0]
     label = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2).argmin(1)
     assert index_map(board, scene.grid[label]) is not None
-    monkeypatch.setattr("ccdn.grid.HIDDEN_EDGES", 1.01)  # no half-edges pass: pruned as before
+    monkeypatch.setattr("ccdn.cleanup.HIDDEN_EDGES", 1.01)  # no half-edges pass: pruned as before
     before = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) - len(before.xy) == hidden
 
 
 def test_the_shade_test_leaves_out_board_corners_without_lattice_steps():
-    """The shade test (ccdn.grid._Grower._in_shade) takes the board's log contrast over up to 32 of
+    """The shade test (ccdn.completion.Completion._in_shade) takes the board's log contrast over up to 32 of
     its corners; one without a filled neighbour pair has no lattice steps (NaN), and casting its
     sampling boxes to pixels warned "invalid value encountered in cast", an exception where
     warnings are errors: on the stress set's shadow render 7160287 (a board a third in deep shadow;
@@ -742,10 +743,10 @@ def test_where_the_frame_cuts_a_board_its_outline_gives_no_corner():
     """Where the frame's edge cuts a board's outline, the one quad pair left on the image alternates
     like a corner's: the stress set's partial render 7130009 had a board corner 0.2 px from the edge
     and 49 px from any true corner (and real-dev photos rotated by 90 degrees, a board one column too
-    wide). Corners closer than ccdn.grid.EDGE_MARGIN to the frame's edge join no board (the renders'
+    wide). Corners closer than ccdn.lattice.EDGE_MARGIN to the frame's edge join no board (the renders'
     labels leave them out too): every corner found is a true one."""
     import ccdn
-    from ccdn.grid import EDGE_MARGIN
+    from ccdn.lattice import EDGE_MARGIN
     scene = stress_scene("partial", 7_130_009)
     h, w = scene.image.shape
     found = ccdn.Detector(threads=2).detect(scene.image).xy

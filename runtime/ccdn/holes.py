@@ -9,7 +9,7 @@ corners the occluded, shadow and two-boards renders missed inside boards the hal
 found, 69 had a peak within 1.5 px). Sending such frames on to the full-frame pass found 25 corners
 more, but at its whole cost (the occluded renders' median time about tripled); here only a box a
 step around each hole is scored, and a hole takes the saddle fit of the box's best peak near the
-grid's prediction, as the grid's vouching does (ccdn.grid._Grower.vouch): scored at least
+grid's prediction, as the grid's vouching does (ccdn.growth.Grower.vouch): scored at least
 HOLE_SCORE x the median of the board's corners in the same boxes, and within HOLE_REACH of a step
 of the prediction, which a fit an occluder's edge pulls off the corner leaves. On a board under a
 shadow (ccdn.shade) a shadow's edge along the hole pulls that fit off too, or leaves no saddle:
@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 
 from .edges import lattice_steps
-from .grid import (MIN_CORNERS, SHADE_SPREAD, Board, hole_cells, indexed_board, inside_margin, largest_first,
-                   with_corners)
+from .grid import MIN_CORNERS, SHADE_SPREAD, Board, hole_cells, indexed_board, largest_first, with_corners
+from .lattice import inside_margin
 from .peaks import best_near, best_peak
 from .refine import refine, window_for_spacing
 from .shade import light_levels, light_spread, refined_across_shadows_edge
@@ -52,7 +52,7 @@ def predicted_cells(grid: np.ndarray, xy: np.ndarray, cells: np.ndarray, shape: 
     board's corners up to NEAR_CELLS cells away: the cells kept (F, 2), their predictions (F, 2) and
     lattice steps there (F, 4, 2: +col, -col, +row, -row, as ccdn.edges.lattice_steps). Cells with
     fewer than 4 such corners, a degenerate fit, or a prediction off the frame (less than
-    EDGE_MARGIN inside: ccdn.grid.inside_margin; a board the frame cuts) are left out."""
+    EDGE_MARGIN inside: ccdn.lattice.inside_margin; a board the frame cuts) are left out."""
     found_cells, preds, steps = [], [], []
     for cell in cells:
         near = (np.abs(grid - cell) <= NEAR_CELLS).all(1)
@@ -135,7 +135,7 @@ def peak_fits(frame: np.ndarray, score: np.ndarray, preds: np.ndarray, steps: np
 def placed(fitted: np.ndarray, preds: np.ndarray, step: np.ndarray, shape: tuple[int, int],
            taken: np.ndarray) -> np.ndarray:
     """(K,) whether fits lie within HOLE_REACH x the shorter step of their predictions, EDGE_MARGIN
-    inside a frame of `shape` (as every board corner: ccdn.grid.inside_margin) and no closer than
+    inside a frame of `shape` (as every board corner: ccdn.lattice.inside_margin) and no closer than
     half a step to a corner already `taken` (M, 2)."""
     ok = (vector_lengths(fitted - preds) <= HOLE_REACH * step) & inside_margin(fitted, shape)
     if len(taken):
@@ -156,7 +156,7 @@ def settled(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[Board, .
     MIN_CORNERS without it. Where a small board lies on a large one, growth let the large one take
     a corner of the small one's lattice lying where the large one's own corner hides beneath, and
     the small board's grid then lacked it: a board wrongly indexed (stress two-boards renders
-    7121130, 7121346, 7122387; also 7120620 and 7121496, which ccdn.grid.CROWDED keeps right
+    7121130, 7121346, 7122387; also 7120620 and 7121496, which ccdn.growth.CROWDED keeps right
     already). Measured: the first 240 two-boards renders of the stress set, 4 -> 1 of 458 boards
     wrongly indexed (the one left: a small board whose lattice continues a large one's, merged into
     it); 120 occluded renders: none; the 1300 cached stress renders' corners identical

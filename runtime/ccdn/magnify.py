@@ -11,7 +11,7 @@ When the full-frame pass runs, the detector also looks at the clusters of score 
 board covers and that are shaped like a sliver (SLIVER_PEAKS peaks or more, SLIVER_ELONGATION times
 longer than wide), each resampled along its long axis and stretched STRETCH times across it: a
 board seen so steeply that no pass finds it is a sliver whose cells are sheared flatter than a
-lattice is grown over (ccdn.grid.MIN_SINE), which magnifying keeps (angles do not change), and
+lattice is grown over (ccdn.lattice.MIN_SINE), which magnifying keeps (angles do not change), and
 stretching across opens up. Exhaustive detection (Detector(exhaustive=True)) looks at every
 cluster of LOOSE_PEAKS or more, whatever its shape: on a cluttered frame ~30 ms more at 640x480
 and 90-190 ms at 2000x1500 (examples/no-board.jpg), where the sliver-shaped ones cost a few ms (README).
@@ -121,7 +121,7 @@ def stretched(gray: np.ndarray, cluster: np.ndarray) -> tuple[np.ndarray, np.nda
     long axis along x and stretched STRETCH times across it, and the affine (2, 3) that maps its
     pixels back onto the frame's; None when that image would exceed MAX_STRETCHED x the frame's
     pixels. A board seen very steeply is a sliver along its long axis whose cells are sheared
-    flatter than a lattice is grown over (ccdn.grid.MIN_SINE: stress renders' missed slivers, sines
+    flatter than a lattice is grown over (ccdn.lattice.MIN_SINE: stress renders' missed slivers, sines
     0.18-0.31): stretched across, its cells open up (sine 0.25 -> ~0.6 at 3x) and its squares widen."""
     centre = cluster.mean(0)
     along = _principal_axes(cluster)[1][:, 1]

@@ -17,7 +17,7 @@ on the levelled frame, of the network's best score there within a quarter step o
 (a homography fitted to the corners around it: ccdn.holes.predicted_cells), where that score is at
 least HOLE_SCORE x the median of the board's corners scored with it, the fit lies within
 HOLE_REACH of a step of the prediction, and its four quads alternate in the board's colours, evenly
-(ccdn.grid.PAIR_RATIO), on the levelled frame: beyond a board's outline, where levelling makes the
+(ccdn.growth.PAIR_RATIO), on the levelled frame: beyond a board's outline, where levelling makes the
 background look light, they do not. New corners left with fewer than two row/column neighbours are
 dropped (lone points on an outline). Without the shade test, 21 outline points of evenly lit
 boards in 120 fresh renders were taken; without the alternation test or the lone points' drop, 1-2
@@ -33,8 +33,10 @@ import numpy as np
 
 from .checker import Sampler, quad_differences
 from .edges import median_step
-from .grid import PAIR_RATIO, SHADE_SPREAD, Board, reoriented, row_col_neighbours, with_corners
+from .grid import SHADE_SPREAD, Board, reoriented, with_corners
+from .growth import PAIR_RATIO
 from .holes import hole_boxes, peak_fits, placed, predicted_cells, shorter_step
+from .lattice import row_col_neighbours
 from .refine import window_for_spacing
 from .session import ScoreSession
 from .shade import across_shadows_edge, levelled, light_levels
