@@ -29,7 +29,8 @@ import numpy as np
 from .lattice import bends, project_with_steps, row_col_neighbours, shorter_length
 from .stats import vector_lengths
 
-MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sharper turn is a wrong corner ...
+MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sharper turn is a wrong corner
+# where it also moves the shorter step's end ccdn.lattice.KINK_PX (bends)
 HIDDEN_EDGES = 0.6  # prune keeps a corner whose neighbours are hidden if its half-edges are this even (_hidden_around)
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
 BRIDGE = 0.4  # an inner line this short against both lines beside it joins two boards (Cleanup.split_at_bridge) ...

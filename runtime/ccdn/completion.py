@@ -63,7 +63,7 @@ COMPLETION_MIN_PAIRS = 2  # quad pairs on the image a completed corner needs: on
 # 1.5-2 px from the frame's edge fewer; the benchmark's renders 2 such corners fewer)
 LOOSE_EDGES = 0.6  # completion's fits where only growth's plain test passes: half-edges this even (0.75 found
 # 10 instead of 16 corners on the 300 occluded, two-boards and shadow renders of four stress samples, the same
-# false positives) ...
+# false positives), at positions held on ccdn.lattice.LOOSE_NEIGHBOURS sides or more
 EVEN_EDGES = 0.5  # completion's edge-line fit in shade: each half-edge's log-scale contrast >= this x the strongest's
 SHADED_CONTRAST = 0.85  # completion's strict test also passes on the quads sampled NEAR_QUADS of the way where
 # their grey-level contrast is below this x the seed's (or above 1 / this): a corner in other light than the seed's

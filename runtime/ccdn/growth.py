@@ -73,7 +73,8 @@ from .lattice import (SEED_AXES, SEED_REACH_UNIFORM, SHADE_OFFSET, TOLERANCE, be
                       project_with_steps, quad_contrast, row_col_neighbours, shorter_length, square_enough)
 from .stats import median, nanmedian_rows, vector_lengths
 
-SLIVER_REACH = 1.5  # ... or of this x the cell's lesser height (altitude), where less: on a sheared sliver
+SLIVER_REACH = 1.5  # growth's tolerance is TOLERANCE (ccdn.lattice) of the shorter local step, or of this x the
+# cell's lesser height (altitude), where less: on a sheared sliver
 # (steps 12-16 px, 4-5 px across) a tip where two squares of one colour nearly touch lies within 0.3 of the
 # step of a true corner, and position-by-position growth took tips the network scored as corners, one
 # after another (extreme-pose stress render 7100011 once its narrow squares completed: a wrongly indexed board

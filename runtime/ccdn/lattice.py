@@ -13,9 +13,11 @@ import numpy as np
 from .checker import pair_differences
 from .stats import nanmedian_rows
 
-TOLERANCE = 0.3  # of the shorter local lattice step ...
+TOLERANCE = 0.3  # how far a corner may lie from its prediction: of the shorter local lattice step (growth: or
+# of ccdn.growth.SLIVER_REACH x the cell's lesser height, where less)
 MIN_SINE = 0.3  # of the angle between the lattice steps: flatter cells are too sheared to sample
-KINK_PX = 2.0  # ... where it also moves the shorter step's end this far (small squares' corner error turns steps)
+KINK_PX = 2.0  # a turn between steps (bends: ccdn.cleanup.MAX_TURN, ccdn.growth.GROWTH_TURN) counts where it also
+# moves the shorter step's end this far (small squares' corner error turns steps)
 SHADE_OFFSET = 8.0  # grey levels: PAIR_RATIO and the strict test's evenness and uniformity are judged on
 # log(grey + this), where shading, which multiplies grey levels, cancels out; the offset is a black square's
 # noise floor, below which the log would magnify noise (measured 3 / 8 / 20: the same within 5 corners of 3800)
@@ -25,7 +27,8 @@ SEED_AXES = 0.3  # ... and this far along each lattice step: a grid of thin line
 EDGE_MARGIN = 1.5  # px: a corner closer to the frame's edge joins no board: the renders' labels leave such
 # corners out too (ccdn_training.synth), their saddle window is mostly off the frame, and where the frame's edge
 # cuts a board's outline, its one visible quad pair passes the image test like a corner's
-LOOSE_NEIGHBOURS = 2  # ... at positions with this many filled row/column neighbours: beyond a board's straight
+LOOSE_NEIGHBOURS = 2  # completion's loose fits (ccdn.completion.LOOSE_EDGES), vouching and holes: at positions
+# with this many filled row/column neighbours: beyond a board's straight
 # outline a position has one, and there the plain test's three quads pass on a white margin (all positions:
 # 3 corners more on those renders, +0.55 ms a 640x480 real-dev frame, 5 %)
 
