@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import json
+from functools import lru_cache
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from ccdn.grid import Board
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -105,3 +109,43 @@ def stress_scene(subset: str, seed: int):
     from stress import CALM, SUBSETS
 
     return render_scene(np.random.default_rng(seed), SceneConfig(**{**CALM, **SUBSETS[subset]}))
+
+
+# a clean frame for render(): one board, no lens, blur, noise or lighting effects, squares 18-45 px
+CLEAN = dict(p_no_board=0.0, p_two_boards=0.0, p_occluder=0.0, p_blur=0.0, p_motion=0.0, p_defocus=0.0,
+             noise_sigma=(0.0, 0.01), p_jpeg=0.0, p_low_contrast=0.0, p_dark=0.0, p_glare=0.0, p_shadow=0.0,
+             square_px=(18.0, 45.0), max_tilt_deg=45.0, p_radial=0.0, p_fisheye=0.0)
+
+
+@lru_cache(maxsize=None)
+def render(seed: int, **changes):
+    """A render (ccdn_training.synth) of one board on a clean frame (CLEAN: no lens, blur, noise or
+    lighting effects, squares 18-45 px), with `changes` to its SceneConfig; cached by seed."""
+    from ccdn_training.synth import SceneConfig, render_scene
+
+    return render_scene(np.random.default_rng(seed), SceneConfig(**{**CLEAN, **changes}))
+
+
+def whole_boards(n: int, **changes) -> list:
+    """The first n renders (by seed) whose single board is entirely visible."""
+    scenes = (render(seed, **{"square_px": (14.0, 22.0), **changes}) for seed in range(50))
+    found = list(islice((s for s in scenes if len(s.corners) == s.boards[0][0] * s.boards[0][1]), n))
+    assert len(found) == n
+    return found
+
+
+def true_part(board: Board, scene) -> tuple[Board, np.ndarray]:
+    """The board's corners within 1 px of a true corner, as a Board, and those true corners' indices."""
+    distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+    true = distance.min(1) < 1.0
+    kept = Board(board.corner_index[true], board.grid[true], board.xy[true], board.cols, board.rows)
+    return kept, distance[true].argmin(1)
+
+
+def true_board(board, scene, within: float) -> bool:
+    """Whether a found board's corners lie on one true board of the render, indexed as it is (one
+    rotation and offset), each within `within` px of its label (the nearest one)."""
+    distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+    label = distance.argmin(1)
+    return (len(set(scene.board_index[label])) == 1 and index_map(board, scene.grid[label]) is not None
+            and distance.min(1).max() < within)
