@@ -1,4 +1,4 @@
-"""Latency benchmark: per-stage times of Detector.detect at 640x480 and 2000x1500, 1 and 2 threads.
+"""Latency benchmark: per-stage times of Detector.detect at 640x480 and 2000x1500 (--sizes: others), 1 and 2 threads.
 
 Frames are the real-dev photos (or the bundled examples when ../shared is absent) converted to gray
 and resized to each size, decoded once up front: the timed call goes from a uint8 frame to refined
@@ -12,7 +12,7 @@ one size with one detector). Frames without a board run the full-resolution pass
 cluttered one (examples/no-board.jpg) is timed at each size with the default detector, without and
 with its fast check (median of --repeat runs).
 
-    python benchmarks/latency.py [--models default paper fast] [--repeat 3] [--json out/latency.json]
+    python benchmarks/latency.py [--models default paper fast] [--repeat 3] [--sizes 640x480 4000x3000] [--json out/latency.json]
 """
 
 from __future__ import annotations
@@ -113,18 +113,27 @@ def time_opencv(frames: list[np.ndarray], sizes: list[tuple[int, int] | None], r
     return {"total": stats(samples), "found_fraction": found / len(samples)}
 
 
-def time_boardless(threads: int, repeat: int) -> dict:
+def time_boardless(threads: int, repeat: int, sizes: list[tuple[int, int]]) -> dict:
     """Median ms (time_detectors) of the default detector, without and with its fast check, on the
-    bundled cluttered frame without a board (examples/no-board.jpg) resized to each size: such
+    bundled cluttered frame without a board (examples/no-board.jpg) resized to each of `sizes`: such
     frames run the full-resolution pass, which the fast check skips."""
     gray = cv2.imread(str(ROOT / "examples" / "no-board.jpg"), cv2.IMREAD_GRAYSCALE)
     names = {"default": False, "fast check": True}
     detectors = [ccdn.Detector(threads=threads, fast_check=check) for check in names.values()]
     out: dict[str, dict[str, float]] = {name: {} for name in names}
-    for w, h in SIZES:
+    for w, h in sizes:
         for name, stages in zip(names, time_detectors(detectors, [resized(gray, (w, h))], repeat)):
             out[name][f"{w}x{h}"] = stages["total"]["median_ms"]
     return out
+
+
+def _size(text: str) -> tuple[int, int]:
+    """A --sizes entry, "WxH", as (W, H)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH, e.g. 640x480, got {text!r}") from None
+    return w, h
 
 
 def _model_arg(name: str) -> str | None:
@@ -168,6 +177,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--frames", type=int, default=12, help="how many real-dev photos to use")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--sizes", type=_size, nargs="+", default=SIZES, help="frame sizes WxH (default: 640x480 2000x1500)")
     parser.add_argument("--no-opencv", action="store_true")
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "latency.json")
     args = parser.parse_args(argv)
@@ -179,7 +189,7 @@ def main(argv: list[str] | None = None) -> None:
               "frames": len(loaded), "repeat": args.repeat,
               "cold_start_ms": {m: cold_start(_model_arg(m)) * 1e3 for m in args.models}, "peak_rss_mb": {},
               "runs": []}
-    for w, h in SIZES:
+    for w, h in args.sizes:
         frames = [resized(f, (w, h)) for f, _ in loaded]
         detectors = [ccdn.Detector(_model_arg(model), threads) for model in args.models for threads in args.threads]
         for detector, stages in zip(detectors, time_detectors(detectors, frames, args.repeat)):
@@ -192,7 +202,7 @@ def main(argv: list[str] | None = None) -> None:
         for model in args.models:
             rss = peak_rss_mb(_model_arg(model), (w, h), args.frames, max(args.threads))
             report["peak_rss_mb"].setdefault(model, {})[f"{w}x{h}"] = rss
-    report["boardless_ms"] = time_boardless(max(args.threads), args.repeat)
+    report["boardless_ms"] = time_boardless(max(args.threads), args.repeat, args.sizes)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     print(format_table(report))

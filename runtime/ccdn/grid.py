@@ -81,6 +81,8 @@ MIN_CORNERS = 8
 MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board behind another (module docstring)
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 BEHIND_UNEVEN = 2  # corners of a seed square with non-uniform quads in the last round (module docstring)
+SAMPLED_REACH = 4.0  # x the corners' median gap: how far around them find_boards' Sampler integrates the image
+# (ccdn.checker.Sampler; real-dev frames at 4000x3000: 12.3 -> 6.0 Mpx a frame; 2 and 3 grew the window more often)
 SHADE_SPREAD = 2.0  # a board lit more unevenly (ccdn.shade.light_spread) is searched for again, levelled: 1.5 found
 # the same corners on shadow renders; every board (0) 7 more of 6427, for a second search on every frame
 _ROTATIONS = (((1, 0), (0, 1)), ((0, -1), (1, 0)), ((-1, 0), (0, -1)), ((0, 1), (-1, 0)))  # the 4 proper
@@ -280,7 +282,7 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
         return ()
     neighbours, dist2 = nearest_neighbours(xy, SEED_REACH)
     gaps = np.sqrt(dist2[:, 0])
-    sampler = Sampler(gray)
+    sampler = Sampler(gray, (xy, SAMPLED_REACH * median(gaps)))
     boards = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete, uneven_seeds)
     square = None
     if complete and boards:
