@@ -184,7 +184,7 @@ class Detector:
             xy, values, found = np.zeros((0, 2), np.float32), np.zeros(0, np.float32), ()
         elif xy is None:
             model = self.model
-            boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape)
+            boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape, self._session.halo)
             xy, values, found, peaks = self._full_frame(gray, boxes, boards, board_size, clock)
             if self._saddle_boards:
                 xy, values, found = self._loose_looks(gray, xy, values, found, peaks, boards, board_size, clock)
