@@ -10,7 +10,7 @@ a 12-bit frame kept 16 grey levels and lost its board); float in [0, 1] scaled b
 frame, silently); bool as 0/255. Other dtypes (signed or wider integers, complex, object) are refused.
 
 Files are decoded by OpenCV (EXIF orientation applied) and then converted as arrays are, so an
-8-bit file gives exactly the result of its `cv2.imread` array; a JPEG is decoded to its luminance
+8-bit file gives exactly the result of its `cv2.imread` array; but a JPEG is decoded to its luminance
 (Y) plane directly, as `cv2.imread(path, cv2.IMREAD_GRAYSCALE)` does: 2-3x faster than decoding
 its colours and converting them (a 12 Mpx photo: 59 -> 24 ms), and the same grey levels but where
 the colours' round trip clipped them (on colourful real-dev photos up to 11 levels on up to 5 % of
