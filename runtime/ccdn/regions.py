@@ -28,6 +28,7 @@ CALL_PIXELS = 400  # a network call's own cost in pixels' worth (paper-int8: ~0.
 WHOLE_FRAME_SHARE = 0.6  # boxes costing more than this share of the frame: run the whole frame instead (a box
 # costs more per pixel than the whole frame: its halo, one more network call)
 
+
 def look_boxes(score: np.ndarray, scale: int, shape: tuple[int, int], halo: int) -> list[tuple[int, int, int, int]] | None:
     """Boxes (top, bottom, left, right) in full-frame pixels of a frame of `shape` where the
     full-resolution network (whose boxes run with `halo` px around them: ccdn.session) must run,
