@@ -186,6 +186,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=None,
                         help=f"bundled model name or .onnx path ({DEFAULT_HELP})")
+    parser.add_argument("--coarse-model", default=None,
+                        help="the shrunk passes' model, with --model the full frame's (default: --model's)")
     parser.add_argument("--refinement", default="saddle")
     parser.add_argument("--filter", default="grid", help="false-corner filter: grid (default), kmeans (paper), none")
     parser.add_argument("--no-coarse", action="store_true", help="always run the network at full resolution")
@@ -198,8 +200,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--json", type=Path, default=ROOT / "out" / "accuracy.json")
     args = parser.parse_args(argv)
-    detector = ccdn.Detector(args.model, args.threads, refinement=args.refinement, filter=args.filter,
-                             coarse_to_fine=not args.no_coarse, fast_check=args.fast_check,
+    detector = ccdn.Detector(args.model, args.threads, coarse_model=args.coarse_model, refinement=args.refinement,
+                             filter=args.filter, coarse_to_fine=not args.no_coarse, fast_check=args.fast_check,
                              exhaustive=args.exhaustive)
     t0 = time.time()
     result = evaluate(detector, args.synthetic, args.seed, real_dev=not args.no_real_dev)

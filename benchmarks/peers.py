@@ -33,11 +33,12 @@ class Adapter:
 
 
 def ccdn_adapter(model: str | os.PathLike | None, threads: int | None, fast_check: bool = False,
-                 exhaustive: bool = False) -> Adapter:
-    """ccdn.Detector with its default settings (and its fast check or exhaustive search when asked)."""
+                 exhaustive: bool = False, coarse_model: str | os.PathLike | None = None) -> Adapter:
+    """ccdn.Detector with its default settings (and its fast check, exhaustive search or shrunk
+    passes' model when asked)."""
     import ccdn
 
-    detector = ccdn.Detector(model, threads, fast_check=fast_check, exhaustive=exhaustive)
+    detector = ccdn.Detector(model, threads, coarse_model=coarse_model, fast_check=fast_check, exhaustive=exhaustive)
     last: list = [None]
 
     def detect(gray: np.ndarray, size: BoardSize) -> np.ndarray:
@@ -106,11 +107,11 @@ def libcbdetect_adapter() -> Adapter:
 DETECTORS = ["ccdn", "opencv", "chess-corners", "libcbdetect"]
 
 
-def load_adapters(names: list[str], model: str | None, threads: int | None,
-                  fast_check: bool = False, exhaustive: bool = False) -> tuple[list[Adapter], dict[str, str]]:
+def load_adapters(names: list[str], model: str | None, threads: int | None, fast_check: bool = False,
+                  exhaustive: bool = False, coarse_model: str | None = None) -> tuple[list[Adapter], dict[str, str]]:
     """The adapters named, in order, and a note for each one skipped because its library is missing."""
     factories: dict[str, Callable[[], Adapter]] = {
-        "ccdn": lambda: ccdn_adapter(model, threads, fast_check, exhaustive),
+        "ccdn": lambda: ccdn_adapter(model, threads, fast_check, exhaustive, coarse_model),
         "opencv": lambda: opencv_adapter(threads),
         "chess-corners": chess_corners_adapter,
         "libcbdetect": libcbdetect_adapter,

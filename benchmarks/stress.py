@@ -351,6 +351,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=None,
                         help=f"ccdn: bundled model name or .onnx path ({DEFAULT_HELP})")
+    parser.add_argument("--coarse-model", default=None,
+                        help="ccdn: the shrunk passes' model, with --model the full frame's (default: --model's)")
     parser.add_argument("--threads", type=int, default=None, help="ccdn and OpenCV threads (default: each library's)")
     parser.add_argument("--fast-check", action="store_true",
                         help="ccdn: Detector(fast_check=True), no full-resolution pass after shrunk passes without a board")
@@ -370,7 +372,8 @@ def main(argv: list[str] | None = None) -> None:
     show_bar = sys.stderr.isatty()
     rendered = {name: render_subset(name, args.per_subset, args.skip)
                 for name in tqdm(args.subsets, unit="subset", desc="render", disable=not show_bar, file=sys.stderr)}
-    adapters, skipped = load_adapters(args.detectors, args.model, args.threads, args.fast_check, args.exhaustive)
+    adapters, skipped = load_adapters(args.detectors, args.model, args.threads, args.fast_check, args.exhaustive,
+                                      args.coarse_model)
     result = evaluate({name: scenes for name, (scenes, _) in rendered.items()}, adapters, show_bar)
     for name, (_, tried) in rendered.items():
         result["subsets"][name]["seeds_tried"] = tried

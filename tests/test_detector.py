@@ -121,7 +121,7 @@ def test_default_models_are_int8_only_on_cpus_with_8bit_dot_products(monkeypatch
         assert detector.models == "+".join(names)
 
 
-@pytest.mark.parametrize("model", ["fast", "fast-int8", "paper-int8", "paper"])
+@pytest.mark.parametrize("model", ["fast", "fast-int8", "fine", "fine-int8", "paper-int8", "paper"])
 @pytest.mark.parametrize("name", ["board", "fisheye", "two-boards"])
 def test_other_bundled_models_find_every_corner_of_the_examples_and_nothing_else(examples, name, model):
     ex = examples[name]
@@ -333,7 +333,7 @@ def test_big_frames_run_in_strips_that_stitch_to_the_whole_frame_scores(detector
     np.testing.assert_allclose(stitched, whole, atol=1e-5)
 
 
-@pytest.mark.parametrize("model", ["paper", "fast"])  # input multiples 1 and 4
+@pytest.mark.parametrize("model", ["paper", "fine", "fast"])  # input multiples 1, 2 and 4
 def test_scores_in_boxes_equal_the_whole_frame_scores_there_and_zero_elsewhere(examples, model):
     import cv2
 

@@ -12,7 +12,7 @@ torch = pytest.importorskip("torch")
 
 from ccdn_training.export import to_onnx  # noqa: E402
 from ccdn_training.loss import ccdn_loss  # noqa: E402
-from ccdn_training.model import ARCHITECTURES, CCDN, FastCCDN, parameter_count  # noqa: E402
+from ccdn_training.model import ARCHITECTURES, CCDN, FastCCDN, FineCCDN, parameter_count  # noqa: E402
 from ccdn_training.synth import SceneConfig, render_scene  # noqa: E402
 from ccdn_training.train import initial_weights, staircase_lr  # noqa: E402
 
@@ -110,7 +110,7 @@ def test_motion_blur_keeps_the_labels_on_the_corners():
         assert np.median(np.linalg.norm(refined - scene.corners, axis=1)) < 0.1, seed
 
 
-@pytest.mark.parametrize("arch", ["paper", "fast"])
+@pytest.mark.parametrize("arch", ["paper", "fast", "fine"])
 def test_onnx_export_matches_pytorch(arch):
     """Tolerance 1e-4 absolute on scores of order 1 (float32 convolution order differs). Seeded: an
     unlucky paper init can leave the output ReLU dead (all zeros), as it did once in a full run."""
@@ -131,20 +131,22 @@ def test_onnx_export_matches_pytorch(arch):
     assert [n.op_type for n in proto.graph.node].count("Pad") == 0
 
 
-def test_runtime_pads_frames_for_a_strided_model_and_stitches_its_strips(tmp_path):
-    """FastCCDN needs H, W multiples of 4: the runtime pads odd frames (edge pixels repeated),
-    crops the scores back, and its strips (with the metadata's receptive radius) stitch exactly."""
+@pytest.mark.parametrize("arch", [FastCCDN, FineCCDN])
+def test_runtime_pads_frames_for_a_strided_model_and_stitches_its_strips(tmp_path, arch):
+    """FastCCDN needs H, W multiples of 4 (FineCCDN of 2): the runtime pads odd frames (edge pixels
+    repeated), crops the scores back, and its strips (with the metadata's receptive radius) stitch
+    exactly."""
     import onnx
 
     import ccdn
 
-    model = FastCCDN()
+    model = arch()
     model.reset_parameters_paper()
     model.eval()
-    onnx.save(to_onnx(model, "fast-test", "0", {}), tmp_path / "fast.onnx")
-    detector = ccdn.Detector(tmp_path / "fast.onnx", threads=1)
+    onnx.save(to_onnx(model, "strided-test", "0", {}), tmp_path / "strided.onnx")
+    detector = ccdn.Detector(tmp_path / "strided.onnx", threads=1)
     gray = np.random.default_rng(1).integers(0, 256, (203, 157), dtype=np.uint8)
-    padded = np.pad(gray, ((0, 1), (0, 3)), mode="edge").astype(np.float32) / 255
+    padded = np.pad(gray, ((0, -203 % arch.stride), (0, -157 % arch.stride)), mode="edge").astype(np.float32) / 255
     with torch.no_grad():
         ref = model(torch.from_numpy(padded)[None, None]).numpy()[0, 0, :203, :157]
     np.testing.assert_allclose(detector.scores(gray), ref, atol=1e-4)
@@ -152,7 +154,7 @@ def test_runtime_pads_frames_for_a_strided_model_and_stitches_its_strips(tmp_pat
     np.testing.assert_allclose(stitched, ref, atol=1e-4)
 
 
-@pytest.mark.parametrize("name", ["paper", "fast"])
+@pytest.mark.parametrize("name", ["paper", "fast", "fine"])
 def test_shipped_model_matches_pytorch_with_its_own_weights(examples, name):
     """A committed .onnx, loaded back into its PyTorch module (as --init-from does to fine-tune a
     shipped model), gives the same scores."""

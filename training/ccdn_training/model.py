@@ -1,5 +1,6 @@
-"""The networks: the paper's CCDN (section 2.1, 6 convs, 16301 parameters) and FastCCDN, a cheaper
-shape for the same job (shipped as the `fast` model).
+"""The networks: the paper's CCDN (section 2.1, 6 convs, 16301 parameters), FastCCDN, a cheaper
+shape for the same job (shipped as the `fast` model), and FineCCDN, FastCCDN's shape at half
+resolution instead of a quarter, for full-resolution passes (shipped as the `fine` model).
 
 Each describes itself as a list of layers (`layers()`), which the ONNX exporter writes node by node.
 """
@@ -101,7 +102,29 @@ class FastCCDN(nn.Module):
         return z if pre_activation else F.relu(z)
 
 
-ARCHITECTURES = {"paper": CCDN, "fast": FastCCDN}
+class FineCCDN(FastCCDN):
+    """FastCCDN with one pooling instead of two: its convs 2-5 run at half resolution and the head's
+    4 channels are the 2x2 pixels of each half-resolution cell, so corners 2-3 px apart get cells of
+    their own (FastCCDN's 4x4 cells merge corners closer than ~5 px: tiny or steep squares, which a
+    full-resolution pass must see). 1.5 GMAC at 640x480, under a third of the paper net's 5.0;
+    receptive radius 12 px. H and W must be multiples of 2.
+    """
+
+    stride = 2
+
+    def layers(self) -> list[tuple]:
+        return [("conv", self.conv1, True), ("maxpool", 2, 2, (0, 0, 0, 0)), ("conv", self.conv2, True),
+                ("conv", self.conv3, True), ("conv", self.conv4, True), ("conv", self.conv5, True),
+                ("conv", self.head, False), ("depth_to_space", self.stride), ("relu",)]
+
+    def forward(self, x: torch.Tensor, pre_activation: bool = False) -> torch.Tensor:
+        x = F.max_pool2d(F.relu(self.conv1(x)), 2)
+        x = F.relu(self.conv5(F.relu(self.conv4(F.relu(self.conv3(F.relu(self.conv2(x))))))))
+        z = F.pixel_shuffle(self.head(x), self.stride)
+        return z if pre_activation else F.relu(z)
+
+
+ARCHITECTURES = {"paper": CCDN, "fast": FastCCDN, "fine": FineCCDN}
 
 
 def parameter_count(model: nn.Module) -> int:
