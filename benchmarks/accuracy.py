@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 import ccdn
-from ccdn.models import DEFAULT_HELP
+from ccdn.models import COARSE_MODEL_HELP, DEFAULT_HELP
 
 from machine import cpu_name
 
@@ -186,8 +186,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=None,
                         help=f"bundled model name or .onnx path ({DEFAULT_HELP})")
-    parser.add_argument("--coarse-model", default=None,
-                        help="the shrunk passes' model, with --model the full frame's (default: --model's)")
+    parser.add_argument("--coarse-model", default=None, help=COARSE_MODEL_HELP)
     parser.add_argument("--refinement", default="saddle")
     parser.add_argument("--filter", default="grid", help="false-corner filter: grid (default), kmeans (paper), none")
     parser.add_argument("--no-coarse", action="store_true", help="always run the network at full resolution")

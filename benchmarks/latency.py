@@ -136,31 +136,44 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _model_arg(name: str) -> str | None:
-    """A --models entry as Detector's model argument: 'default' is None (the default detector)."""
-    return None if name == "default" else name
+def _detector_args(name: str) -> tuple[str | None, str | None]:
+    """A --models entry as Detector's (model, coarse_model): 'default' is the default detector,
+    'COARSE+FULL' a cascade of two named models (e.g. fast-int8+fine-int8), a lone name that model
+    on every pass."""
+    if name == "default":
+        return None, None
+    coarse, _, full = name.rpartition("+")
+    return full, coarse or None
 
 
-def cold_start(model: str | None, repeat: int = 5) -> float:
+def _detector(name: str, threads: int) -> ccdn.Detector:
+    """The detector a --models entry names (_detector_args), with `threads`."""
+    model, coarse_model = _detector_args(name)
+    return ccdn.Detector(model, threads, coarse_model=coarse_model)
+
+
+def cold_start(model: tuple[str | None, str | None], repeat: int = 5) -> float:
     """Seconds for import + Detector + first detect of a blank 640x480 frame in a fresh interpreter,
     median of `repeat`. Python may cache bytecode, as it does by default and as pip does when it
     installs the wheel (an untimed first run writes the cache): this machine's environment sets
     PYTHONDONTWRITEBYTECODE, which would make every start compile ccdn's modules again (~35 ms)."""
     code = ("import time; t=time.perf_counter(); import numpy as np, ccdn; "
-            f"d=ccdn.Detector({model!r}); d.detect(np.zeros((480, 640), np.uint8)); print(time.perf_counter()-t)")
+            f"d=ccdn.Detector({model[0]!r}, coarse_model={model[1]!r}); d.detect(np.zeros((480, 640), np.uint8)); "
+            "print(time.perf_counter()-t)")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
             for _ in range(repeat + 1)]
     return float(np.median([float(r.stdout.strip()) for r in runs[1:]]))
 
 
-def peak_rss_mb(model: str | None, size: tuple[int, int], frames: int, threads: int) -> float:
+def peak_rss_mb(model: tuple[str | None, str | None], size: tuple[int, int], frames: int, threads: int) -> float:
     """Peak RSS (MB) of a fresh process that builds the detector and detects every frame at `size`:
     what an app running that one detector holds (this process, with every configuration's detector
     alive at once, would hold them all)."""
     code = ("import sys, ccdn; sys.path.insert(0, sys.argv[1]); from latency import iter_frames, resized; "
             "from machine import own_peak_rss_mb; "
-            f"d = ccdn.Detector({model!r}, {threads}); [d.detect(resized(f, {size!r})) for f, _ in iter_frames({frames})]; "
+            f"d = ccdn.Detector({model[0]!r}, {threads}, coarse_model={model[1]!r}); "
+            f"[d.detect(resized(f, {size!r})) for f, _ in iter_frames({frames})]; "
             "print(own_peak_rss_mb())")
     done = subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent)], capture_output=True, text=True,
                           check=True)
@@ -173,7 +186,8 @@ STAGES = ("load", "network", "peaks", "refine", "boards", "edges")
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--models", nargs="+", default=["default"],
-                        help="bundled model names or .onnx paths; 'default': the default detector (fast+paper cascade)")
+                        help="bundled model names or .onnx paths (that model on every pass), COARSE+FULL for a "
+                             "cascade of two (e.g. fast-int8+fine-int8); 'default': the default detector")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--frames", type=int, default=12, help="how many real-dev photos to use")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
@@ -187,11 +201,11 @@ def main(argv: list[str] | None = None) -> None:
     report = {"machine": {"cpu": cpu_name(), "cpus": os.cpu_count(),
                           "python": platform.python_version()},
               "frames": len(loaded), "repeat": args.repeat,
-              "cold_start_ms": {m: cold_start(_model_arg(m)) * 1e3 for m in args.models}, "peak_rss_mb": {},
+              "cold_start_ms": {m: cold_start(_detector_args(m)) * 1e3 for m in args.models}, "peak_rss_mb": {},
               "runs": []}
     for w, h in args.sizes:
         frames = [resized(f, (w, h)) for f, _ in loaded]
-        detectors = [ccdn.Detector(_model_arg(model), threads) for model in args.models for threads in args.threads]
+        detectors = [_detector(model, threads) for model in args.models for threads in args.threads]
         for detector, stages in zip(detectors, time_detectors(detectors, frames, args.repeat)):
             report["runs"].append({"size": f"{w}x{h}", "threads": detector.threads, "model": detector.models,
                                    "stages": stages})
@@ -200,7 +214,7 @@ def main(argv: list[str] | None = None) -> None:
             report["runs"].append({"size": f"{w}x{h}", "threads": max(args.threads), "model": "opencv-findChessboardCornersSB",
                                    "stages": time_opencv(frames, board_sizes, 1)})
         for model in args.models:
-            rss = peak_rss_mb(_model_arg(model), (w, h), args.frames, max(args.threads))
+            rss = peak_rss_mb(_detector_args(model), (w, h), args.frames, max(args.threads))
             report["peak_rss_mb"].setdefault(model, {})[f"{w}x{h}"] = rss
     report["boardless_ms"] = time_boardless(max(args.threads), args.repeat, args.sizes)
     args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 from ccdn.checker import altitude
-from ccdn.models import DEFAULT_HELP
+from ccdn.models import COARSE_MODEL_HELP, DEFAULT_HELP
 from ccdn_training.synth import PAPER_BOARDS, Scene, SceneConfig, render_scene
 from tqdm import tqdm
 
@@ -351,8 +351,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=None,
                         help=f"ccdn: bundled model name or .onnx path ({DEFAULT_HELP})")
-    parser.add_argument("--coarse-model", default=None,
-                        help="ccdn: the shrunk passes' model, with --model the full frame's (default: --model's)")
+    parser.add_argument("--coarse-model", default=None, help=COARSE_MODEL_HELP)
     parser.add_argument("--threads", type=int, default=None, help="ccdn and OpenCV threads (default: each library's)")
     parser.add_argument("--fast-check", action="store_true",
                         help="ccdn: Detector(fast_check=True), no full-resolution pass after shrunk passes without a board")

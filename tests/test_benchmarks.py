@@ -40,6 +40,19 @@ def test_latency_times_every_stage_at_both_sizes(tmp_path):
     assert set(rss) == {"640x480", "2000x1500"} and min(rss.values()) > 0
 
 
+def test_latency_models_name_one_model_a_cascade_or_the_default():
+    """--models entries: a lone name runs that model on every pass, COARSE+FULL a cascade of two,
+    'default' the default detector."""
+    import ccdn
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from latency import _detector
+
+    assert _detector("fine", 1).models == "fine"
+    assert _detector("fast-int8+fine-int8", 1).models == "fast-int8+fine-int8"
+    assert _detector("default", 1).models == ccdn.Detector(threads=1).models
+
+
 # the fast check looks only for squares of 7 px or more on the halved frame: the first clean render's are
 # 6.7 px there (it finds nothing, as promised); the second's are 9.9 px
 @pytest.mark.parametrize("check", [[], ["--fast-check", "--skip", "1"]])

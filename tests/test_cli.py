@@ -277,6 +277,20 @@ def test_quickstart_command_writes_json_and_overlays_for_the_examples(tmp_path, 
         assert (tmp_path / "out" / f"{path.name}.overlay.jpg").stat().st_size > 0
 
 
+def test_coarse_model_reaches_the_workers_with_the_full_frame_model(tmp_path):
+    """--model serves the full frame and --coarse-model the shrunk passes, in worker processes too:
+    the board is found on the halved frame (the coarse model's pass), the boardless frame runs the
+    full-frame pass (its model's)."""
+    if not EXAMPLES.is_dir():
+        pytest.skip("no bundled examples")
+    out = tmp_path / "out"
+    assert main(["detect", str(EXAMPLES / "board.jpg"), str(EXAMPLES / "no-board.jpg"), "--out", str(out),
+                 "--model", "fine-int8", "--coarse-model", "fast-int8", "--workers", "2", "--quiet"]) == 0
+    board, empty = (json.loads((out / f"{name}.json").read_text()) for name in ("board.jpg", "no-board.jpg"))
+    assert board["model"].startswith("fast-int8 ") and len(board["corners"]) == 54
+    assert empty["model"].startswith("fine-int8 ") and empty["corners"] == []
+
+
 def test_names_starting_with_a_dash_work_after_double_dash(tmp_path, monkeypatch, capsys):
     make_inputs(tmp_path, 1)
     (tmp_path / "img000.png").rename(tmp_path / "-dash.png")

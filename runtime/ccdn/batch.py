@@ -92,6 +92,7 @@ class BatchOptions:
     model: str | os.PathLike | None = None
     max_pixels: int = DEFAULT_MAX_PIXELS
     exhaustive: bool = False  # Detector(exhaustive=True): more found, at more time per frame
+    coarse_model: str | os.PathLike | None = None  # Detector(coarse_model=...): the shrunk passes' model
 
 
 def default_workers() -> int:
@@ -168,8 +169,8 @@ class Batch:
         self.options = options
         in_process = options.workers == 1
         # The model is loaded here even for worker processes, so that a bad model fails up front.
-        detector = Detector(options.model, options.threads or 1, exhaustive=options.exhaustive,
-                            max_pixels=options.max_pixels)
+        detector = Detector(options.model, options.threads or 1, coarse_model=options.coarse_model,
+                            exhaustive=options.exhaustive, max_pixels=options.max_pixels)
         self._detector = detector if in_process else None
         options.out.mkdir(parents=True, exist_ok=True)
         self.log_name = LOG_FILES.get(options.format)  # None: one JSON file per image
@@ -204,7 +205,7 @@ class Batch:
         pool = None
         if self._detector is None:
             pool = ordered_map(_work, tasks, min(o.workers, max(len(tasks), 1)), _init_worker,
-                               (o.model, o.threads or 1, o.max_pixels, o.exhaustive, os.getpid()))
+                               (o.model, o.coarse_model, o.threads or 1, o.max_pixels, o.exhaustive, os.getpid()))
         outcomes: Iterator[Outcome | WorkerDied] = pool or map(_Worker(self._detector), tasks)
         try:
             for (item, _), outcome in zip(tasks, outcomes):
@@ -259,7 +260,8 @@ class _Worker:
 _worker: _Worker | None = None
 
 
-def _init_worker(model: str | os.PathLike | None, threads: int, max_pixels: int, exhaustive: bool, parent: int) -> None:
+def _init_worker(model: str | os.PathLike | None, coarse_model: str | os.PathLike | None, threads: int,
+                 max_pixels: int, exhaustive: bool, parent: int) -> None:
     """Per-process set-up: one Detector, quiet OpenCV on one thread, Ctrl-C left to the parent.
     parent: the parent's pid, passed in: a parent killed while this worker was starting would
     already have left os.getppid() pointing at init."""
@@ -268,7 +270,8 @@ def _init_worker(model: str | os.PathLike | None, threads: int, max_pixels: int,
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     cv2.setNumThreads(1)
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-    _worker = _Worker(Detector(model, threads, spinning=False, exhaustive=exhaustive, max_pixels=max_pixels))
+    _worker = _Worker(Detector(model, threads, coarse_model=coarse_model, spinning=False, exhaustive=exhaustive,
+                               max_pixels=max_pixels))
 
 
 def _exit_with_parent(parent: int) -> None:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .models import DEFAULT_HELP
+from .models import COARSE_MODEL_HELP, DEFAULT_HELP
 
 FORMATS = ["json", "jsonl", "csv"]  # ccdn.batch.FORMATS, repeated so that the parser imports nothing heavy
 MAX_PIXELS_HELP = "100000000"  # ccdn.image.DEFAULT_MAX_PIXELS, likewise (a test checks both)
@@ -40,7 +40,7 @@ def run_detect(args: argparse.Namespace) -> int:
     overlay = args.format == "json" if args.overlay is None else args.overlay
     workers = args.workers or default_workers()
     options = BatchOptions(args.out, args.format, overlay, args.force, workers, args.threads, args.model,
-                           args.max_pixels or DEFAULT_MAX_PIXELS, args.exhaustive)
+                           args.max_pixels or DEFAULT_MAX_PIXELS, args.exhaustive, args.coarse_model)
     try:
         batch = Batch(options)
         items, failures = collect_inputs(args.paths, args.include, args.exclude, skip=args.out)
@@ -114,6 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "covers, stretched, not only the sliver-shaped ones (more time per cluttered frame)")
     p.add_argument("--model", default=None,
                    help=f"bundled model name or .onnx path ({DEFAULT_HELP})")
+    p.add_argument("--coarse-model", default=None, help=COARSE_MODEL_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary line; failures are still listed")
     p.set_defaults(func=run_detect)
     c = sub.add_parser(
@@ -128,6 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--model-type", choices=["pinhole", "fisheye"], default="pinhole", help="lens model (default pinhole)")
     c.add_argument("--model", default=None,
                    help=f"bundled detector model name or .onnx path ({DEFAULT_HELP})")
+    c.add_argument("--coarse-model", default=None, help=COARSE_MODEL_HELP)
     c.add_argument("--threads", type=positive_int, default=None, metavar="N", help="inference threads")
     c.add_argument("--exhaustive", action="store_true", help="search harder for boards (see ccdn detect --help)")
     c.add_argument("--out", type=Path, required=True, help="output folder")
@@ -157,7 +159,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from .grid import find_boards
 
     try:
-        detector = Detector(args.model, args.threads, exhaustive=args.exhaustive)
+        detector = Detector(args.model, args.threads, coarse_model=args.coarse_model, exhaustive=args.exhaustive)
         items, failures = collect_inputs([args.dir], skip=args.out)
     except (OSError, ValueError) as exc:  # ModelError is a ValueError
         print(f"ccdn: {exc}", file=sys.stderr)

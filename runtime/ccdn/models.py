@@ -11,6 +11,8 @@ FLOAT_MODEL = "paper"  # the default elsewhere: the same network and figures in 
 COARSE_INT8_MODEL = "fast-int8"  # the default cascade's shrunk passes there (default_coarse_model)
 COARSE_FLOAT_MODEL = "fast"  # ... and elsewhere
 DEFAULT_HELP = "default: fast on shrunk frames, then paper (their int8 variants on CPUs with VNNI)"  # for --model help texts
+COARSE_MODEL_HELP = ("the shrunk passes' model (bundled name or .onnx path), --model then serving the full frame only, "
+                     "e.g. --model fine-int8 --coarse-model fast-int8 (default: --model itself, or the default cascade's)")
 _INT8_DOT_FEATURES = ("AVX512VNNI", "AVX512_CLX", "AVX512_ICL", "AVX512_SPR")  # numpy's names for x86 VNNI
 _INT8_DOT_FLAGS = ("avx512_vnni", "avx_vnni", "amx_int8")  # /proc/cpuinfo's, incl. AVX-VNNI, which numpy does not name
 
