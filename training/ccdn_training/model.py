@@ -91,13 +91,17 @@ class FastCCDN(nn.Module):
         return [self.conv1, self.conv2, self.conv3, self.conv4, self.conv5, self.head]
 
     def layers(self) -> list[tuple]:
-        return [("conv", self.conv1, True), ("maxpool", 2, 2, (0, 0, 0, 0)), ("conv", self.conv2, True),
-                ("conv", self.conv3, True), ("maxpool", 2, 2, (0, 0, 0, 0)), ("conv", self.conv4, True),
-                ("conv", self.conv5, True), ("conv", self.head, False), ("depth_to_space", self.stride), ("relu",)]
+        pool = ("maxpool", 2, 2, (0, 0, 0, 0))
+        second_pool = [pool] if self.stride == 4 else []  # FineCCDN (stride 2) stays at half resolution
+        return [("conv", self.conv1, True), pool, ("conv", self.conv2, True), ("conv", self.conv3, True),
+                *second_pool, ("conv", self.conv4, True), ("conv", self.conv5, True), ("conv", self.head, False),
+                ("depth_to_space", self.stride), ("relu",)]
 
     def forward(self, x: torch.Tensor, pre_activation: bool = False) -> torch.Tensor:
         x = F.max_pool2d(F.relu(self.conv1(x)), 2)
-        x = F.max_pool2d(F.relu(self.conv3(F.relu(self.conv2(x)))), 2)
+        x = F.relu(self.conv3(F.relu(self.conv2(x))))
+        if self.stride == 4:  # as in layers()
+            x = F.max_pool2d(x, 2)
         z = F.pixel_shuffle(self.head(F.relu(self.conv5(F.relu(self.conv4(x))))), self.stride)
         return z if pre_activation else F.relu(z)
 
@@ -111,17 +115,6 @@ class FineCCDN(FastCCDN):
     """
 
     stride = 2
-
-    def layers(self) -> list[tuple]:
-        return [("conv", self.conv1, True), ("maxpool", 2, 2, (0, 0, 0, 0)), ("conv", self.conv2, True),
-                ("conv", self.conv3, True), ("conv", self.conv4, True), ("conv", self.conv5, True),
-                ("conv", self.head, False), ("depth_to_space", self.stride), ("relu",)]
-
-    def forward(self, x: torch.Tensor, pre_activation: bool = False) -> torch.Tensor:
-        x = F.max_pool2d(F.relu(self.conv1(x)), 2)
-        x = F.relu(self.conv5(F.relu(self.conv4(F.relu(self.conv3(F.relu(self.conv2(x))))))))
-        z = F.pixel_shuffle(self.head(x), self.stride)
-        return z if pre_activation else F.relu(z)
 
 
 ARCHITECTURES = {"paper": CCDN, "fast": FastCCDN, "fine": FineCCDN}
