@@ -107,3 +107,19 @@ def test_only_sliver_shaped_clusters_are_looked_at_unless_any_shape():
     assert sizes(slivers) == [45]
     np.testing.assert_array_equal(slivers[0], sliver)
     assert sizes(magnify.loose_clusters(peaks, (), (480, 640), any_shape=True)) == [45, 40, 36, 18]
+
+
+def test_a_sliver_beside_clutter_is_looked_at_on_its_own():
+    """A sliver (3 rows of 15 peaks 8 px apart) with a lattice of clutter peaks 10 px apart just
+    below it: linked within LOOSE_LINK they form one cluster, not sliver-shaped; linked within
+    TIGHT_LINK the sliver stands alone and is looked at. any_shape keeps the looser link's one cluster."""
+    col, row = np.meshgrid(np.arange(15), np.arange(3))
+    sliver = np.stack([40 + 8 * col + 2 * row, 40 + 3 * row], -1).reshape(-1, 2)
+    col, row = np.meshgrid(np.arange(6), np.arange(6))
+    clutter = np.stack([40 + 10 * col, 56 + 10 * row], -1).reshape(-1, 2)
+    assert magnify.TIGHT_LINK < 10 <= magnify.LOOSE_LINK
+    peaks = np.concatenate([sliver, clutter]).astype(np.float64)
+    slivers = magnify.loose_clusters(peaks, (), (480, 640))
+    assert len(slivers) == 1
+    np.testing.assert_array_equal(slivers[0], sliver)
+    assert [len(c) for c in magnify.loose_clusters(peaks, (), (480, 640), any_shape=True)] == [81]

@@ -9,7 +9,8 @@ of the ones it covers when it has more corners.
 
 When the full-frame pass runs, the detector also looks at the clusters of score peaks that no
 board covers and that are shaped like a sliver (SLIVER_PEAKS peaks or more, SLIVER_ELONGATION times
-longer than wide), each resampled along its long axis and stretched STRETCH times across it: a
+longer than wide; peaks linked within LOOSE_LINK px, and again within TIGHT_LINK, where clutter
+beside a sliver would otherwise merge with it), each resampled along its long axis and stretched STRETCH times across it: a
 board seen so steeply that no pass finds it is a sliver whose cells are sheared flatter than a
 lattice is grown over (ccdn.lattice.MIN_SINE), which magnifying keeps (angles do not change), and
 stretching across opens up. Exhaustive detection (Detector(exhaustive=True)) looks at every
@@ -38,20 +39,34 @@ MAX_SHARE = 0.5  # of the frame's area at most (the magnified pass costs MAGNIFI
 SAME_CORNER = 2.0  # px: a magnified board's corner this close to one of a board found before: the same board
 LOOSE_PEAKS = 9  # a cluster of at least this many score peaks that no board covers ...
 LOOSE_LINK = 12.0  # ... each within this many px of another, is looked at stretched (loose_clusters, stretched) ...
+TIGHT_LINK = 8.0  # px: sliver-shaped clusters are also sought among peaks linked this closely, where a looser link
+# merges a sliver with clutter beside it (thin grid lines crossing), whose spread then hides the sliver's shape
+# and turns its look away from the board's axis
 MAX_LOOKS = 8  # ... the largest this many clusters of a frame; by default only sliver-shaped clusters:
 SLIVER_PEAKS = 30  # at least this many peaks, ...
 SLIVER_ELONGATION = 4.5  # ... their spread (standard deviation) along the long axis this many times that across ...
 SLIVER_WIDTH = 2.0  # ... which is at least this many px (not one line of peaks, such as an edge's). Measured on
 # 1280 stress renders: the 9 looks that found boards had 50-342 peaks, elongations 5.3-24 and widths 2.9-15 px;
-# of the 1159 looks at clusters of any shape, 95 are sliver-shaped, which cost 1.5 of the 17.0 s
+# of the 1159 looks at clusters of any shape, 95 are sliver-shaped, which cost 1.5 of the 17.0 s. 4.0 (tried with
+# TIGHT_LINK on 80 fresh extreme-pose renders) found nothing more there for the default and sent clusters of noise
+# peaks (4.0-4.5) to looks of 100-330 ms
 STRETCH = 3.0  # x across a cluster's long axis (measured on 90 extreme-pose renders: 2x magnified
 # isotropically found 8 of the 127 corners of four missed slivers, 3x across alone 109)
 MAX_STRETCHED = 2.0  # x the frame's pixels at most per stretched view
 COVERED = 3.0  # px: a peak this close to a board's corner, or inside its outline, is that board's
 
 
-_LINK_DISK = cv2.circle(np.zeros((2 * int(LOOSE_LINK / 2) + 1,) * 2, np.uint8), (int(LOOSE_LINK / 2),) * 2,
-                        int(LOOSE_LINK / 2), 1, -1)  # the disk loose_clusters grows each peak by
+
+
+def _link_disk(link: float) -> np.ndarray:
+    """The disk of radius half `link` that _linked grows each peak by: overlapping disks link."""
+    r = int(link / 2)
+    disk = cv2.circle(np.zeros((2 * r + 1,) * 2, np.uint8), (r, r), r, 1, -1)
+    disk.setflags(write=False)
+    return disk
+
+
+_LINK_DISKS = {link: _link_disk(link) for link in (LOOSE_LINK, TIGHT_LINK)}
 
 
 def thin_region(boards: tuple[Board, ...], shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
@@ -76,7 +91,8 @@ def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[in
     """The clusters (each (K, 2)) of score peaks (N, 2) on a frame of `shape` (h, w) that no board
     covers (COVERED), largest first, at most MAX_LOOKS: a cluster links peaks within LOOSE_LINK px
     of each other and needs LOOSE_PEAKS of them; unless any_shape, only sliver-shaped ones
-    (_sliver_shaped). On a board seen so steeply that its squares are slivers the network still
+    (_sliver_shaped), among those and, inside the others, among the clusters of peaks linked within
+    TIGHT_LINK px. On a board seen so steeply that its squares are slivers the network still
     scores many corners that no pass links."""
     h, w = shape
     loose = np.asarray(peaks, np.float64).reshape(-1, 2)
@@ -91,14 +107,30 @@ def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[in
         loose, col, row = loose[keep], col[keep], row[keep]
     if len(loose) < LOOSE_PEAKS:
         return []
-    links = np.zeros(shape, np.uint8)  # each peak's disk of half LOOSE_LINK: overlapping disks link
+    if any_shape:
+        return [loose[members] for members in _linked(row, col, shape, LOOSE_LINK, LOOSE_PEAKS)][:MAX_LOOKS]
+    least = max(LOOSE_PEAKS, SLIVER_PEAKS)
+    clusters, in_sliver = [], np.zeros(len(loose), bool)
+    for members in _linked(row, col, shape, LOOSE_LINK, least):
+        if _sliver_shaped(loose[members]):
+            clusters.append(loose[members])
+            in_sliver |= members
+    # the tighter link splits only clusters that are not slivers themselves (its clusters nest in the looser ones)
+    for members in _linked(row, col, shape, TIGHT_LINK, least):
+        if not in_sliver[members].any() and _sliver_shaped(loose[members]):
+            clusters.append(loose[members])
+    return sorted(clusters, key=len, reverse=True)[:MAX_LOOKS]  # stable: ties keep the looser link's first
+
+
+def _linked(row: np.ndarray, col: np.ndarray, shape: tuple[int, int], link: float, least: int) -> list[np.ndarray]:
+    """The clusters of the peaks at pixels (row, col) (each a (N,) bool mask over them) linking peaks
+    within `link` px of each other, those of at least `least` peaks, largest first."""
+    links = np.zeros(shape, np.uint8)  # each peak's disk of half the link: overlapping disks link
     links[row, col] = 1
-    _, labels = cv2.connectedComponents(cv2.dilate(links, _LINK_DISK), connectivity=8)
+    _, labels = cv2.connectedComponents(cv2.dilate(links, _LINK_DISKS[link]), connectivity=8)
     label = labels[row, col]
     counts = np.bincount(label)
-    least = LOOSE_PEAKS if any_shape else max(LOOSE_PEAKS, SLIVER_PEAKS)
-    clusters = [loose[label == k] for k in np.argsort(-counts, kind="stable") if k and counts[k] >= least]
-    return [cluster for cluster in clusters if any_shape or _sliver_shaped(cluster)][:MAX_LOOKS]
+    return [label == k for k in np.argsort(-counts, kind="stable") if k and counts[k] >= least]
 
 
 def _sliver_shaped(cluster: np.ndarray) -> bool:
