@@ -152,19 +152,23 @@ def indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Boar
     return board
 
 
-def _behind_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
-                    behind: list[tuple[np.ndarray, tuple[np.ndarray, ...]]]
-                    ) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
-    """The last round's squares (BEHIND_UNEVEN uneven corners) of the free `seeds` and each seed's row
-    in them: those the earlier rounds sampled since the last board was grown (`behind`: (seeds, their
-    squares)) as they are, the others sampled now."""
-    fresh = list(behind)
+def _sampled_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
+                     sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]], levels: tuple[int, ...]
+                     ) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
+    """A later round's squares (levels[0] uneven corners) of the free `seeds` and each seed's row in
+    them: those the earlier rounds sampled since the last board was grown (sampled[levels[0]]:
+    (seeds, their squares)) as they are, the others sampled now, at all the `levels` still to come
+    (their squares at the further levels go to `sampled` too)."""
+    fresh = list(sampled[levels[0]])
     known = np.zeros(len(xy), bool)
     for ahead, _ in fresh:
         known[ahead] = True
     if not known[seeds].all():
         stale = seeds[~known[seeds]]
-        fresh.append((stale, seed_squares(xy, sampler, stale, neighbours[stale], free, (BEHIND_UNEVEN,))[0]))
+        now, *later = seed_squares(xy, sampler, stale, neighbours[stale], free, levels)
+        fresh.append((stale, now))
+        for level, squares in zip(levels[1:], later):
+            sampled[level].append((stale, squares))
     ahead = np.concatenate([a for a, _ in fresh])
     squares = tuple(np.concatenate(parts) for parts in zip(*(q for _, q in fresh)))
     return squares, dict(zip(ahead.tolist(), range(len(ahead))))  # a seed sampled twice: its last row
@@ -336,25 +340,30 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less);
     # squares with BEHIND_UNEVEN uneven corners last, once a board is found (module docstring)
     grown = False
-    behind: list[tuple[np.ndarray, tuple[np.ndarray, ...]]] = []  # (seeds, their squares at BEHIND_UNEVEN)
-    for uneven in [*range(uneven_seeds + 1), BEHIND_UNEVEN]:
+    levels = (*range(uneven_seeds + 1), BEHIND_UNEVEN)
+    # each later round's squares, sampled ahead with an earlier round's (one sampling serves every count:
+    # seed_squares) since the last board grew: (seeds, their squares) per count
+    sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]] = {level: [] for level in levels[1:]}
+    for round_index, uneven in enumerate(levels):
         last = uneven == BEHIND_UNEVEN
         if last and not (grown and free[seeds].any()):
             break
         batch: dict[int, int] = {}  # seed -> its row in squares, checked in growing batches of the free seeds
         size = 1 if uneven == 0 else SEED_CHUNK
-        if last:  # the earlier rounds sampled the last round's squares too: since the last board grew, they hold
-            squares, batch = _behind_squares(xy, sampler, seeds[free[seeds]], neighbours, free, behind)
+        if uneven != 0 and free[seeds].any():  # the earlier rounds sampled this round's squares too, since the
+            # last board grew
+            squares, batch = _sampled_squares(xy, sampler, seeds[free[seeds]], neighbours, free, sampled,
+                                              levels[round_index:])
         for k, s in enumerate(seeds.tolist()):
             if not free[s]:
                 continue
             if s not in batch:
                 ahead = seeds[k:][free[seeds[k:]]][:size]
                 size = min(4 * size, SEED_CHUNK)  # the first seed usually finds the board
-                squares, *later = seed_squares(xy, sampler, ahead, neighbours[ahead], free,
-                                                (uneven,) if last else (uneven, BEHIND_UNEVEN))
+                squares, *later = seed_squares(xy, sampler, ahead, neighbours[ahead], free, levels[round_index:])
                 batch = dict(zip(ahead.tolist(), range(len(ahead))))
-                behind.extend((ahead, part) for part in later)
+                for level, part in zip(levels[round_index + 1 :], later):
+                    sampled[level].append((ahead, part))
             square = [part[batch[s]] for part in squares]
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
@@ -365,7 +374,8 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
                 continue
             grid, idx = grower.cells()
             grown = True
-            behind.clear()  # sampled while the board's corners were free: `free` changes only here
+            for parts in sampled.values():  # sampled while the board's corners were free: `free` changes only here
+                parts.clear()
             free[idx[idx < n]] = False  # a board of another size still owns its corners
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
             added.extend(grower.added)
