@@ -110,25 +110,33 @@ def loose_clusters(peaks: np.ndarray, boards: tuple[Board, ...], shape: tuple[in
     if any_shape:
         return [loose[members] for members in _linked(row, col, shape, LOOSE_LINK, LOOSE_PEAKS)][:MAX_LOOKS]
     least = max(LOOSE_PEAKS, SLIVER_PEAKS)
-    clusters, in_sliver = [], np.zeros(len(loose), bool)
+    clusters, others = [], np.zeros(len(loose), bool)
     for members in _linked(row, col, shape, LOOSE_LINK, least):
         if _sliver_shaped(loose[members]):
             clusters.append(loose[members])
-            in_sliver |= members
-    # the tighter link splits only clusters that are not slivers themselves (its clusters nest in the looser ones)
-    for members in _linked(row, col, shape, TIGHT_LINK, least):
-        if not in_sliver[members].any() and _sliver_shaped(loose[members]):
-            clusters.append(loose[members])
+        else:
+            others |= members
+    if others.any():  # the tighter link splits the others (its clusters nest in the looser link's)
+        inside = np.nonzero(others)[0]
+        for members in _linked(row[inside], col[inside], shape, TIGHT_LINK, least):
+            if _sliver_shaped(loose[inside[members]]):
+                clusters.append(loose[inside[members]])
     return sorted(clusters, key=len, reverse=True)[:MAX_LOOKS]  # stable: ties keep the looser link's first
 
 
 def _linked(row: np.ndarray, col: np.ndarray, shape: tuple[int, int], link: float, least: int) -> list[np.ndarray]:
-    """The clusters of the peaks at pixels (row, col) (each a (N,) bool mask over them) linking peaks
-    within `link` px of each other, those of at least `least` peaks, largest first."""
-    links = np.zeros(shape, np.uint8)  # each peak's disk of half the link: overlapping disks link
-    links[row, col] = 1
-    _, labels = cv2.connectedComponents(cv2.dilate(links, _LINK_DISKS[link]), connectivity=8)
-    label = labels[row, col]
+    """The clusters of the peaks at pixels (row, col) of a frame of `shape` (each a (N,) bool mask
+    over them) linking peaks within `link` px of each other, those of at least `least` peaks, largest
+    first. Drawn on the peaks' bounding box grown by the disk's radius (within the frame), which
+    holds every link: on a large frame the whole frame's dilation cost most of the time."""
+    disk = _LINK_DISKS[link]
+    r = len(disk) // 2
+    top, left = max(row.min() - r, 0), max(col.min() - r, 0)
+    bottom, right = min(row.max() + r + 1, shape[0]), min(col.max() + r + 1, shape[1])
+    links = np.zeros((bottom - top, right - left), np.uint8)  # each peak's disk of half the link: overlapping
+    links[row - top, col - left] = 1  # disks link
+    _, labels = cv2.connectedComponents(cv2.dilate(links, disk), connectivity=8)
+    label = labels[row - top, col - left]
     counts = np.bincount(label)
     return [label == k for k in np.argsort(-counts, kind="stable") if k and counts[k] >= least]
 
