@@ -9,8 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from ccdn.grid import find_boards
-from conftest import index_map, whole_boards
+from ccdn.checker import Sampler
+from ccdn.grid import BEHIND_UNEVEN, find_boards, nearest_neighbours
+from ccdn.seeds import SEED_REACH, seed_squares
+from conftest import index_map, stress_scene, whole_boards
 
 pytest.importorskip("ccdn_training.synth")
 
@@ -99,3 +101,22 @@ def test_a_board_with_marks_in_its_corner_squares_still_seeds(dotted):
         assert find_boards(image, scene.corners, np.ones(len(scene.corners))) == ()  # strict seeds only
     else:
         assert boards == ()
+
+
+def test_one_sampling_serves_every_count_of_uneven_corners():
+    """seed_squares asked for several counts at once (ccdn.grid's search samples a later round's
+    squares with an earlier round's) gives each count what asking for it alone gives: on a two-boards
+    stress render's corners, with clutter points among them so that many seeds' shortest squares
+    fail and are sampled further, every seed, at 1 and BEHIND_UNEVEN uneven corners."""
+    scene = stress_scene("two-boards", 7_120_937)
+    rng = np.random.default_rng(0)
+    h, w = scene.image.shape
+    clutter = rng.uniform((0, 0), (w - 1, h - 1), (150, 2))
+    xy = np.concatenate([scene.corners, clutter]).astype(np.float64)
+    neighbours = nearest_neighbours(xy, SEED_REACH)[0]
+    sampler, free, seeds = Sampler(scene.image), np.ones(len(xy), bool), np.arange(len(xy))
+    together = seed_squares(xy, sampler, seeds, neighbours, free, (0, 1, BEHIND_UNEVEN))
+    assert together[1][0].sum() > together[0][0].sum() > 0  # the looser count passes more seeds
+    for level, alone in ((1, (1, BEHIND_UNEVEN)), (2, (BEHIND_UNEVEN,))):
+        for part, same in zip(together[level], seed_squares(xy, sampler, seeds, neighbours, free, alone)[0]):
+            np.testing.assert_array_equal(part, same)
