@@ -10,10 +10,10 @@ of the ones it covers when it has more corners.
 When the full-frame pass runs, the detector also looks at the clusters of score peaks that no
 board covers and that are shaped like a sliver (SLIVER_PEAKS peaks or more, SLIVER_ELONGATION times
 longer than wide; peaks linked within LOOSE_LINK px, and again within TIGHT_LINK, where clutter
-beside a sliver would otherwise merge with it), each resampled along its long axis and stretched STRETCH times across it: a
-board seen so steeply that no pass finds it is a sliver whose cells are sheared flatter than a
-lattice is grown over (ccdn.lattice.MIN_SINE), which magnifying keeps (angles do not change), and
-stretching across opens up. Exhaustive detection (Detector(exhaustive=True)) looks at every
+beside a sliver would otherwise merge with it), each resampled along its long axis and stretched
+STRETCH times across it: a board seen so steeply that no pass finds it is a sliver whose cells are
+sheared flatter than a lattice is grown over (ccdn.lattice.MIN_SINE), which magnifying keeps
+(angles do not change), and stretching across opens up. Exhaustive detection (Detector(exhaustive=True)) looks at every
 cluster of LOOSE_PEAKS or more, whatever its shape: on a cluttered frame ~30 ms more at 640x480
 and 90-190 ms at 2000x1500 (examples/no-board.jpg), where the sliver-shaped ones cost a few ms (README).
 """
@@ -54,8 +54,6 @@ STRETCH = 3.0  # x across a cluster's long axis (measured on 90 extreme-pose ren
 # isotropically found 8 of the 127 corners of four missed slivers, 3x across alone 109)
 MAX_STRETCHED = 2.0  # x the frame's pixels at most per stretched view
 COVERED = 3.0  # px: a peak this close to a board's corner, or inside its outline, is that board's
-
-
 
 
 def _link_disk(link: float) -> np.ndarray:
@@ -128,7 +126,7 @@ def _linked(row: np.ndarray, col: np.ndarray, shape: tuple[int, int], link: floa
     """The clusters of the peaks at pixels (row, col) of a frame of `shape` (each a (N,) bool mask
     over them) linking peaks within `link` px of each other, those of at least `least` peaks, largest
     first. Drawn on the peaks' bounding box grown by the disk's radius (within the frame), which
-    holds every link: on a large frame the whole frame's dilation cost most of the time."""
+    holds every link: the clusters drawing the whole frame would give, for less."""
     disk = _LINK_DISKS[link]
     r = len(disk) // 2
     top, left = max(row.min() - r, 0), max(col.min() - r, 0)
