@@ -7,7 +7,7 @@ import pytest
 
 from ccdn.edges import lattice_steps
 from ccdn.grid import SHADE_SPREAD, Board
-from ccdn.shade import across_shadows_edge, levelled, light_levels, light_spread, points_light_spread
+from ccdn.shade import across_shadows_edge, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from conftest import stress_scene
 
 pytest.importorskip("ccdn_training.synth")
@@ -42,7 +42,8 @@ def test_points_light_spread_reads_loose_corners_as_light_spread_reads_their_boa
     scene = stress_scene(subset, seed)
     gaps = np.linalg.norm(scene.corners[:, None] - scene.corners[None], axis=2)
     np.fill_diagonal(gaps, np.inf)
-    spread = points_light_spread(scene.image, scene.corners.astype(np.float64), float(np.median(gaps.min(1))))
+    envelope = light_envelope(scene.image, float(np.median(gaps.min(1))))
+    spread = points_light_spread(envelope, scene.corners.astype(np.float64))
     assert low <= spread <= high
     assert (spread > SHADE_SPREAD) == (subset == "shadow")
 

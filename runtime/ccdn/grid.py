@@ -74,7 +74,7 @@ from .edges import lattice_steps, median_step
 from .growth import Grower
 from .lattice import held_on_two_sides, inside_margin
 from .seeds import SEED_CHUNK, SEED_REACH, seed_squares
-from .shade import levelled, light_levels, light_spread, points_light_spread
+from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from .stats import median, vector_lengths
 
 MIN_CORNERS = 8
@@ -288,15 +288,15 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     gaps = np.sqrt(dist2[:, 0])
     sampler = Sampler(gray, (xy, SAMPLED_REACH * median(gaps)))
     boards = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete, uneven_seeds)
-    square = None
+    square = envelope = None
     if complete and boards:
         square = _shaded_square(gray, sampler, boards)
-    elif complete and shade_unfound:
-        square = _unlit_square(gray, xy, gaps)
+    elif complete and shade_unfound and (unlit := _unlit_square(gray, xy, gaps)) is not None:
+        square, envelope = unlit
     if square is not None:
         # a board under a shadow: the search again on the frame with its light levelled (ccdn.shade), kept
         # where it finds more corners
-        flat = levelled(gray, square)
+        flat = levelled(gray, square, envelope)
         again = _search(flat, Sampler(flat), xy, score, neighbours, gaps, board_size, allow_partial, complete,
                         uneven_seeds)
         if sum(map(len, again)) > sum(map(len, boards)):
@@ -314,15 +314,17 @@ def _shaded_square(gray: np.ndarray, sampler: Sampler, boards: tuple[Board, ...]
     return None
 
 
-def _unlit_square(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray) -> float | None:
+def _unlit_square(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray) -> tuple[float, LightEnvelope] | None:
     """The median gap (px) of the corner-like points (ccdn.checker.x_like) among corners xy with
-    their `gaps`, where at least MIN_CORNERS of them are lit more unevenly than SHADE_SPREAD
-    (ccdn.shade.points_light_spread); None otherwise."""
+    their `gaps`, and gray's light level for squares that size (ccdn.shade.light_envelope, which
+    levelling the frame takes up), where at least MIN_CORNERS of them are lit more unevenly than
+    SHADE_SPREAD (ccdn.shade.points_light_spread); None otherwise."""
     corner_like = x_like(gray, xy, gaps)
     if corner_like.sum() < MIN_CORNERS:
         return None
     square = float(median(gaps[corner_like]))
-    return square if points_light_spread(gray, xy[corner_like], square) > SHADE_SPREAD else None
+    envelope = light_envelope(gray, square)
+    return (square, envelope) if points_light_spread(envelope, xy[corner_like]) > SHADE_SPREAD else None
 
 
 def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarray, neighbours: np.ndarray,

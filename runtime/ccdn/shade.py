@@ -23,6 +23,8 @@ of those renders' boards).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 
@@ -108,31 +110,40 @@ def refined_across_shadows_edge(gray: np.ndarray, xy: np.ndarray, steps: np.ndar
     return (on_edges + origin).astype(np.float32), converged | moved
 
 
-def levelled(gray: np.ndarray, square: float) -> np.ndarray:
+class LightEnvelope(NamedTuple):
+    """A frame's light level (light_envelope): the lightest squares' envelope, uint8, made on the frame
+    shrunk `shrink` times, where the closing's box is `size` px."""
+
+    light: np.ndarray
+    shrink: float
+    size: int
+
+
+def levelled(gray: np.ndarray, square: float, envelope: LightEnvelope | None = None) -> np.ndarray:
     """gray (uint8) divided by its light level (module docstring) for squares about `square` px
-    across, scaled so the light level maps to 255: uint8, gray's shape."""
-    light, shrink, size = _envelope(gray, square)
+    across, scaled so the light level maps to 255: uint8, gray's shape. envelope: light_envelope(gray,
+    square), where made already (ccdn.grid judges the points' light spread by it first)."""
+    light, _, size = light_envelope(gray, square) if envelope is None else envelope
     light = cv2.GaussianBlur(light.astype(np.float32), (0, 0), size / 6)
     if light.shape != gray.shape:
         light = cv2.resize(light, (gray.shape[1], gray.shape[0]), interpolation=cv2.INTER_LINEAR)
     return cv2.divide(gray.astype(np.float32), np.maximum(light, MIN_LIGHT), scale=255.0, dtype=cv2.CV_8U)
 
 
-def points_light_spread(gray: np.ndarray, xy: np.ndarray, square: float) -> float:
+def points_light_spread(envelope: LightEnvelope, xy: np.ndarray) -> float:
     """How unevenly points xy (N, 2) are lit, as light_spread judges a board's corners, from the
-    light level (the closing, unsmoothed) under each point for squares about `square` px across:
-    for points no board holds yet (ccdn.grid.find_boards)."""
-    light, shrink, _ = _envelope(gray, square)
+    light level (light_envelope: the closing, unsmoothed) under each point: for points no board holds
+    yet (ccdn.grid.find_boards)."""
+    light, shrink, _ = envelope
     cell = np.rint((xy + 0.5) / shrink - 0.5).astype(np.int64)
     x = np.clip(cell[:, 0], 0, light.shape[1] - 1)
     y = np.clip(cell[:, 1], 0, light.shape[0] - 1)
     return light_spread(light[y, x][None])
 
 
-def _envelope(gray: np.ndarray, square: float) -> tuple[np.ndarray, float, int]:
+def light_envelope(gray: np.ndarray, square: float) -> LightEnvelope:
     """The lightest squares' envelope (module docstring) for squares about `square` px across, on
-    gray shrunk so its closing box is about CLOSING_PX: (envelope uint8, the shrink factor, the
-    box's size there in px)."""
+    gray shrunk so its closing box is about CLOSING_PX."""
     h, w = gray.shape
     box = max(3.0, CLOSING_SQUARES * square)
     shrink = max(1.0, box / CLOSING_PX)
@@ -140,4 +151,4 @@ def _envelope(gray: np.ndarray, square: float) -> tuple[np.ndarray, float, int]:
                                                   interpolation=cv2.INTER_AREA)
     size = int(round(box / shrink)) | 1
     envelope = cv2.morphologyEx(small, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (size, size)))
-    return envelope, shrink, size
+    return LightEnvelope(envelope, shrink, size)
