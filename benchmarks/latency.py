@@ -152,13 +152,15 @@ def _detector(name: str, threads: int) -> ccdn.Detector:
     return ccdn.Detector(model, threads, coarse_model=coarse_model)
 
 
-def cold_start(model: tuple[str | None, str | None], repeat: int = 5) -> float:
+def cold_start(detector_args: tuple[str | None, str | None], repeat: int = 5) -> float:
     """Seconds for import + Detector + first detect of a blank 640x480 frame in a fresh interpreter,
-    median of `repeat`. Python may cache bytecode, as it does by default and as pip does when it
-    installs the wheel (an untimed first run writes the cache): this machine's environment sets
-    PYTHONDONTWRITEBYTECODE, which would make every start compile ccdn's modules again (~35 ms)."""
+    median of `repeat`; detector_args: Detector's (model, coarse_model) (_detector_args). Python may
+    cache bytecode, as it does by default and as pip does when it installs the wheel (an untimed
+    first run writes the cache): this machine's environment sets PYTHONDONTWRITEBYTECODE, which
+    would make every start compile ccdn's modules again (~35 ms)."""
     code = ("import time; t=time.perf_counter(); import numpy as np, ccdn; "
-            f"d=ccdn.Detector({model[0]!r}, coarse_model={model[1]!r}); d.detect(np.zeros((480, 640), np.uint8)); "
+            f"d=ccdn.Detector({detector_args[0]!r}, coarse_model={detector_args[1]!r}); "
+            "d.detect(np.zeros((480, 640), np.uint8)); "
             "print(time.perf_counter()-t)")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
     runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
@@ -166,13 +168,14 @@ def cold_start(model: tuple[str | None, str | None], repeat: int = 5) -> float:
     return float(np.median([float(r.stdout.strip()) for r in runs[1:]]))
 
 
-def peak_rss_mb(model: tuple[str | None, str | None], size: tuple[int, int], frames: int, threads: int) -> float:
+def peak_rss_mb(detector_args: tuple[str | None, str | None], size: tuple[int, int], frames: int,
+                threads: int) -> float:
     """Peak RSS (MB) of a fresh process that builds the detector and detects every frame at `size`:
     what an app running that one detector holds (this process, with every configuration's detector
     alive at once, would hold them all)."""
     code = ("import sys, ccdn; sys.path.insert(0, sys.argv[1]); from latency import iter_frames, resized; "
             "from machine import own_peak_rss_mb; "
-            f"d = ccdn.Detector({model[0]!r}, {threads}, coarse_model={model[1]!r}); "
+            f"d = ccdn.Detector({detector_args[0]!r}, {threads}, coarse_model={detector_args[1]!r}); "
             f"[d.detect(resized(f, {size!r})) for f, _ in iter_frames({frames})]; "
             "print(own_peak_rss_mb())")
     done = subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent)], capture_output=True, text=True,

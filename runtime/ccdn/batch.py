@@ -94,6 +94,12 @@ class BatchOptions:
     exhaustive: bool = False  # Detector(exhaustive=True): more found, at more time per frame
     coarse_model: str | os.PathLike | None = None  # Detector(coarse_model=...): the shrunk passes' model
 
+    def detector(self, **extra) -> Detector:
+        """The Detector these options describe (one session thread by default), with `extra` settings
+        of Detector's own: the batch's in-process detector and each worker's are built here alike."""
+        return Detector(self.model, self.threads or 1, coarse_model=self.coarse_model, exhaustive=self.exhaustive,
+                        max_pixels=self.max_pixels, **extra)
+
 
 def default_workers() -> int:
     """One worker per CPU this process may run on, capped at MAX_DEFAULT_WORKERS."""
@@ -169,8 +175,7 @@ class Batch:
         self.options = options
         in_process = options.workers == 1
         # The model is loaded here even for worker processes, so that a bad model fails up front.
-        detector = Detector(options.model, options.threads or 1, coarse_model=options.coarse_model,
-                            exhaustive=options.exhaustive, max_pixels=options.max_pixels)
+        detector = options.detector()
         self._detector = detector if in_process else None
         options.out.mkdir(parents=True, exist_ok=True)
         self.log_name = LOG_FILES.get(options.format)  # None: one JSON file per image
@@ -205,7 +210,7 @@ class Batch:
         pool = None
         if self._detector is None:
             pool = ordered_map(_work, tasks, min(o.workers, max(len(tasks), 1)), _init_worker,
-                               (o.model, o.coarse_model, o.threads or 1, o.max_pixels, o.exhaustive, os.getpid()))
+                               (o, os.getpid()))
         outcomes: Iterator[Outcome | WorkerDied] = pool or map(_Worker(self._detector), tasks)
         try:
             for (item, _), outcome in zip(tasks, outcomes):
@@ -260,9 +265,9 @@ class _Worker:
 _worker: _Worker | None = None
 
 
-def _init_worker(model: str | os.PathLike | None, coarse_model: str | os.PathLike | None, threads: int,
-                 max_pixels: int, exhaustive: bool, parent: int) -> None:
-    """Per-process set-up: one Detector, quiet OpenCV on one thread, Ctrl-C left to the parent.
+def _init_worker(options: BatchOptions, parent: int) -> None:
+    """Per-process set-up: one Detector (options.detector, not spinning), quiet OpenCV on one thread,
+    Ctrl-C left to the parent.
     parent: the parent's pid, passed in: a parent killed while this worker was starting would
     already have left os.getppid() pointing at init."""
     global _worker
@@ -270,8 +275,7 @@ def _init_worker(model: str | os.PathLike | None, coarse_model: str | os.PathLik
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     cv2.setNumThreads(1)
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-    _worker = _Worker(Detector(model, threads, coarse_model=coarse_model, spinning=False, exhaustive=exhaustive,
-                               max_pixels=max_pixels))
+    _worker = _Worker(options.detector(spinning=False))
 
 
 def _exit_with_parent(parent: int) -> None:

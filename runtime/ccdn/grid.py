@@ -165,13 +165,21 @@ def _sampled_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighb
         known[ahead] = True
     if not known[seeds].all():
         stale = seeds[~known[seeds]]
-        now, *later = seed_squares(xy, sampler, stale, neighbours[stale], free, levels)
-        fresh.append((stale, now))
-        for level, squares in zip(levels[1:], later):
-            sampled[level].append((stale, squares))
+        fresh.append((stale, _sample_ahead(xy, sampler, stale, neighbours, free, sampled, levels)))
     ahead = np.concatenate([a for a, _ in fresh])
     squares = tuple(np.concatenate(parts) for parts in zip(*(q for _, q in fresh)))
     return squares, dict(zip(ahead.tolist(), range(len(ahead))))  # a seed sampled twice: its last row
+
+
+def _sample_ahead(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
+                  sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]], levels: tuple[int, ...]
+                  ) -> tuple[np.ndarray, ...]:
+    """The squares of `seeds` at levels[0] uneven corners (seed_squares); their squares at the further
+    `levels`, from the same sampling, go to `sampled` for the rounds to come."""
+    now, *later = seed_squares(xy, sampler, seeds, neighbours[seeds], free, levels)
+    for level, squares in zip(levels[1:], later):
+        sampled[level].append((seeds, squares))
+    return now
 
 
 def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.ndarray | None, added: list,
@@ -362,10 +370,8 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             if s not in batch:
                 ahead = seeds[k:][free[seeds[k:]]][:size]
                 size = min(4 * size, SEED_CHUNK)  # the first seed usually finds the board
-                squares, *later = seed_squares(xy, sampler, ahead, neighbours[ahead], free, levels[round_index:])
+                squares = _sample_ahead(xy, sampler, ahead, neighbours, free, sampled, levels[round_index:])
                 batch = dict(zip(ahead.tolist(), range(len(ahead))))
-                for level, part in zip(levels[round_index + 1 :], later):
-                    sampled[level].append((ahead, part))
             square = [part[batch[s]] for part in squares]
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
