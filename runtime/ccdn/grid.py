@@ -25,9 +25,10 @@ a seam between two boards grown into one). A grid of at least 2 x 3 positions an
 board (two rows or columns: the strip of a board that another hides; 3 x 3 before, which lost two
 such strips of 9 and 18 corners in the four stress samples' 1440 renders and changed nothing else
 there, on real-dev or its perturbed photos); its corners are removed and the search repeats for
-further boards. Corners in no board are dropped, and no corner closer than EDGE_MARGIN to the
-frame's edge joins one (where the frame cuts a board's outline, its one visible quad pair alternates
-like a corner's).
+further boards. Once no seed is left, each board takes its pieces beyond a gap (another board or an
+occluder in front of it) among the corners no board holds (ccdn.bridging). Corners in no board are
+dropped, and no corner closer than EDGE_MARGIN to the frame's edge joins one (where the frame cuts a
+board's outline, its one visible quad pair alternates like a corner's).
 
 Shade (complete=True): a board whose lightest quads differ across it by more than SHADE_SPREAD
 (ccdn.shade.light_spread: a shadow over part of it) is searched for again, from the same corners,
@@ -203,6 +204,19 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     return grower
 
 
+def _bridge_leftovers(growers: list[Grower], free: np.ndarray) -> None:
+    """Once the search is done, each board in turn takes its pieces beyond a gap among the corners no
+    board holds (ccdn.bridging); `free` follows. Done during the search, a board took 3 corners of a
+    like-posed board beside it, on its lattice by chance, before that board was found; and growing
+    on from the pieces it took, a board took a point on the outline of the board in front of it."""
+    n = len(free)
+    for grower in growers:
+        grower.free = free.copy()
+        if grower.bridge():
+            idx = grower.cells()[1]
+            free[idx[idx < n]] = False
+
+
 def _orient(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,
             allow_partial: bool) -> np.ndarray | None:
     """(row, col) in the documented orientation, or None if the board does not fit board_size."""
@@ -345,7 +359,8 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     corner_like = x_like(gray, xy, gaps)[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
     free = inside_margin(xy, gray.shape)  # corners at the frame's edge are in no board
-    found, added = [], []
+    growers: list[Grower] = []
+    added: list[np.ndarray] = []
     # strict seed squares first; squares with uneven corners only among the seeds left when they are done
     # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less);
     # squares with BEHIND_UNEVEN uneven corners last, once a board is found (module docstring)
@@ -380,15 +395,20 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
                       if square[0] else None)
             if grower is None:
                 continue
-            grid, idx = grower.cells()
+            idx = grower.cells()[1]
             grown = True
             for parts in sampled.values():  # sampled while the board's corners were free: `free` changes only here
                 parts.clear()
             free[idx[idx < n]] = False  # a board of another size still owns its corners
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
             added.extend(grower.added)
-            oriented = _orient(grid, grower.points(idx), grower.sign, board_size, allow_partial)
-            if oriented is not None:
-                found.append((idx, oriented))
+            growers.append(grower)
+    _bridge_leftovers(growers, free)
     points = np.concatenate([xy, np.reshape(added, (-1, 2))])
-    return tuple(largest_first([indexed_board(idx, grid, points[idx]) for idx, grid in found]))
+    found = []
+    for grower in growers:
+        grid, idx = grower.cells()
+        oriented = _orient(grid, grower.points(idx), grower.sign, board_size, allow_partial)
+        if oriented is not None:
+            found.append(indexed_board(idx, oriented, points[idx]))
+    return tuple(largest_first(found))

@@ -67,11 +67,13 @@ import numpy as np
 
 from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differences, quad_differences, quad_levels,
                       quad_means, quad_spread)
+from .bridging import Bridging
 from .cleanup import Cleanup
 from .completion import SHADED_CONTRAST, Completion
-from .lattice import (SEED_AXES, SEED_REACH_UNIFORM, SHADE_OFFSET, TOLERANCE, bends, distances, held_on_two_sides,
-                      project_with_steps, quad_contrast, row_col_neighbours, shorter_length, square_enough)
-from .stats import median, nanmedian_rows, vector_lengths
+from .lattice import (SEED_AXES, SEED_REACH_UNIFORM, SHADE_OFFSET, TOLERANCE, bends, distances, looks_flat,
+                      held_on_two_sides, project_with_steps, quad_contrast, row_col_neighbours, shorter_length,
+                      square_enough)
+from .stats import median, nanmedian_rows
 
 SLIVER_REACH = 1.5  # growth's tolerance is TOLERANCE (ccdn.lattice) of the shorter local step, or of this x the
 # cell's lesser height (altitude), where less: on a sheared sliver
@@ -82,7 +84,6 @@ SLIVER_REACH = 1.5  # growth's tolerance is TOLERANCE (ccdn.lattice) of the shor
 GROWTH_TURN = 20.0  # growth's own limit, looser: a wrong corner taken first must not keep out the true one
 RELATIVE_CONTRAST = 0.05  # of the seed's median contrast: a board's part in deep shade keeps a fifth to a
 # twentieth of its lit part's (stress shadow renders, 0.2 before: 12.2 -> 10.5 % missed; every other render the same)
-FLAT_RESIDUAL = 0.05  # of the lattice step: a worse homography fit stops the ring-at-once growth
 PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner, on the log scale (a board outline has a ~0 pair)
 WIDE_SPREAD = 1.5  # growth's image test: quads sampled as widely as a seed's vary by at most this x their contrast ...
 CROWDED = 0.75  # ... at a corner with another this close (x the shorter lattice step): other corners in its cells
@@ -111,9 +112,9 @@ _PRED_C = np.array([[k * dc for k in (1, 2, 3) for _, dc in _DIRECTIONS]
                     + [0] * 4 + [dc for _, dc in _DIAGONALS] + [dc for _, dc in _DIAGONALS]])
 
 
-class Grower(Completion, Cleanup):
+class Grower(Completion, Cleanup, Bridging):
     """Grows one board from a seed square over the free corners (completing it from the image:
-    Completion; cleaning it up after: Cleanup)."""
+    Completion; cleaning it up after: Cleanup; reaching across a gap: Bridging)."""
 
     def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler, gaps: np.ndarray,
                  gray: np.ndarray | None = None, first_added: int = 0, occupied: np.ndarray | None = None,
@@ -318,12 +319,17 @@ class Grower(Completion, Cleanup):
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
         if len(ok) == 0:
             return none, none
-        crowded = self.gaps[candidate[ok]] < CROWDED * shorter_length(u[ok], v[ok])
-        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok], crowded=crowded)]
+        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok],
+                              crowded=self._crowded(candidate[ok], u[ok], v[ok]))]
         if local:
             ok = ok[self._straight(cells[ok], self.xy[candidate[ok]])]
         ok = _nearest_cell_wins(ok, dist, candidate)
         return ok, candidate[ok]
+
+    def _crowded(self, corners: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(K,) whether corners (K,) have another within CROWDED of the shorter of their steps u, v: inside
+        their cells (_accepts)."""
+        return self.gaps[corners] < CROWDED * shorter_length(u, v)
 
     def _nearest_free(self, preds: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Each prediction's (K, 2) nearest free corner and its distance: (corners (K,), distances
@@ -350,7 +356,7 @@ class Grower(Completion, Cleanup):
         grid (at most CANVAS_MARGIN) take their matching corners (_match: within TOLERANCE of the
         cell's projection, the image test with the projected steps) where these connect to the
         grid along rows and columns. Stops when nothing is added or the fit's worst residual
-        exceeds FLAT_RESIDUAL of the shorter step (lens distortion: the local rounds of grow()
+        exceeds FLAT_RESIDUAL (ccdn.lattice) of the shorter step (lens distortion: the local rounds of grow()
         take over). A 9 x 9 board fills in 3 rounds instead of ~12 local ones."""
         while True:
             free = np.nonzero(self.free)[0]
@@ -361,10 +367,7 @@ class Grower(Completion, Cleanup):
             grid = (filled - self.origin)[:, ::-1].astype(np.float64)  # (col, row), like (x, y)
             points = self.pos[filled[:, 0], filled[:, 1]]
             homography, _ = cv2.findHomography(grid, points, 0)
-            if homography is None or abs(np.linalg.det(homography)) < 1e-12:
-                return
-            fitted, u, v = project_with_steps(homography, grid)
-            if (vector_lengths(fitted - points) > FLAT_RESIDUAL * shorter_length(u, v)).any():
+            if homography is None or abs(np.linalg.det(homography)) < 1e-12 or not looks_flat(homography, grid, points):
                 return
             inverse = cv2.perspectiveTransform(self.xy[free][None], np.linalg.inv(homography))[0]
             cells = np.rint(inverse[:, ::-1] + self.origin)  # (row, col) on the canvas

@@ -11,10 +11,12 @@ import cv2
 import numpy as np
 
 from .checker import pair_differences
-from .stats import nanmedian_rows
+from .stats import nanmedian_rows, vector_lengths
 
 TOLERANCE = 0.3  # how far a corner may lie from its prediction: of the shorter local lattice step (growth: or
 # of ccdn.growth.SLIVER_REACH x the cell's lesser height, where less)
+FLAT_RESIDUAL = 0.05  # of the lattice step: a board whose homography misses a corner by more is not flat
+# (lens distortion): looks_flat
 MIN_SINE = 0.3  # of the angle between the lattice steps: flatter cells are too sheared to sample
 KINK_PX = 2.0  # a turn between steps (bends: ccdn.cleanup.MAX_TURN, ccdn.growth.GROWTH_TURN) counts where it also
 # moves the shorter step's end this far (small squares' corner error turns steps)
@@ -39,6 +41,14 @@ def project_with_steps(homography: np.ndarray, grid: np.ndarray) -> tuple[np.nda
     moved = cv2.perspectiveTransform(np.concatenate([grid, grid + [1, 0], grid + [0, 1]])[None], homography)[0]
     points, right, down = moved.reshape(3, -1, 2)
     return points, right - points, down - points
+
+
+def looks_flat(homography: np.ndarray, grid: np.ndarray, points: np.ndarray) -> bool:
+    """Whether a homography from grid points (col, row) (K, 2) to their image points (K, 2) misses
+    none by more than FLAT_RESIDUAL of the shorter step there: the board looks flat, and the fit
+    predicts positions beyond it (ccdn.growth, ccdn.bridging)."""
+    fitted, u, v = project_with_steps(homography, grid)
+    return not (vector_lengths(fitted - points) > FLAT_RESIDUAL * shorter_length(u, v)).any()
 
 
 def distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
