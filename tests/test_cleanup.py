@@ -1,4 +1,4 @@
-"""Cleanup (ccdn.cleanup): sharp turns, lone points, stubs and seams dropped after growth.
+"""Cleanup (ccdn.cleanup): sharp turns, lone points, stubs, seams and grids of lines dropped after growth.
 
 True corners (plus false points) or the detector on renders with exact labels.
 """
@@ -129,3 +129,27 @@ def test_the_corners_an_occluder_leaves_one_neighbour_stay(seed, hidden, monkeyp
     monkeypatch.setattr("ccdn.cleanup.HIDDEN_EDGES", 1.01)  # no half-edges pass: pruned as before
     before = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) - len(before.xy) == hidden
+
+
+def test_a_grid_of_thick_lines_is_no_board(monkeypatch):
+    """The stress benchmark's boardless render 7150153 (a fresh seed) holds a grid of dark lines 3 px
+    wide every 10 px: on the lattice of its crossings and cells turned 45 degrees, the midpoints of
+    its line segments passed every corner test, a board of 2059 false corners. Its quads' axis pull
+    (ccdn.checker.axis_pull: a crossing is dark along the lines, light between them) is ~1.1, a
+    true board's ~0 (a calm render's): it is no board (Grower.line_grid), and nothing is detected."""
+    import ccdn
+    from ccdn.checker import Sampler, axis_pull
+    from ccdn.edges import lattice_steps
+
+    scene = stress_scene("no-board", 7_150_153)
+    assert len(ccdn.Detector(threads=2).detect(scene.image).xy) == 0
+    monkeypatch.setattr("ccdn.cleanup.LINE_GRID", np.inf)
+    (grid,) = ccdn.Detector(threads=2).detect(scene.image).boards
+    calm = calm_scene(0)
+    (board,) = ccdn.Detector(threads=2).detect(calm.image).boards
+    for image, found, expected in ((scene.image, grid, (0.8, 1.5)), (calm.image, board, (-0.1, 0.1))):
+        steps = lattice_steps(found)
+        known = np.isfinite(steps[:, [0, 2]]).all((1, 2))
+        pull = axis_pull(Sampler(image), found.xy[known].astype(np.float64), steps[known, 0], steps[known, 2])
+        assert expected[0] < np.nanmedian(pull) < expected[1]
+    assert len(grid) > 1000

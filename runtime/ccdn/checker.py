@@ -184,6 +184,34 @@ def _quad_coefficients(reach: float, axes: float) -> np.ndarray:
     return coefficients
 
 
+def axis_pull(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(K,) for corners p (K, 2) with lattice steps u, v: how far, over their quads, the grey level
+    sampled 0.3 of a step from a quad's centre along u and v (4 samples) lies beyond the level 0.25
+    of the way to its corners (4 samples), towards the other colour, in units of the corner's
+    contrast (the mean of its quad centres' distance from their mean); the largest of its 4 quads.
+    A checker square is uniform: ~0. Where a grid of thick lines passes for a board on the lattice
+    of its crossings and cells turned 45 degrees, a crossing is dark along the lines, i.e. along its
+    quad's diagonals, and light between them: ~1 (NaN where a quad is off the image)."""
+    p = np.atleast_2d(p)
+    samples = sampler.mean(p + _combinations(u, v, _PULL_STEPS), _box_radius(u, v)).reshape(4, 9, -1)
+    centre, diagonal, axis = samples[:, 0], samples[:, 1:5].mean(1), samples[:, 5:].mean(1)  # (4, K) each
+    middle = centre.mean(0)
+    contrast = np.abs(centre - middle).mean(0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.fmax.reduce((axis - diagonal) * np.sign(middle - centre) / contrast, 0)
+
+
+def _pull_steps() -> np.ndarray:
+    """(36, 4): axis_pull's samples over _combinations' basis (u + v, u - v, u, v), per quad: its
+    centre, 0.25 of the way to its 4 corners (along u + v and u - v), 0.3 of a step along +-u, +-v."""
+    offsets = np.array([(0, 0, 0, 0), (0.25, 0, 0, 0), (-0.25, 0, 0, 0), (0, 0.25, 0, 0), (0, -0.25, 0, 0),
+                        (0, 0, 0.3, 0), (0, 0, -0.3, 0), (0, 0, 0, 0.3), (0, 0, 0, -0.3)])
+    steps = (_HALF_STEPS[:, None] + offsets[None]).reshape(-1, 4)
+    steps.setflags(write=False)
+    return steps
+
+
+_PULL_STEPS = _pull_steps()
 _RING_ANGLES = np.arange(16) * (2 * np.pi / 16)
 _RING_COS, _RING_SIN = np.cos(_RING_ANGLES), np.sin(_RING_ANGLES)
 _RING_HARMONICS = np.stack([_RING_COS, _RING_SIN, np.cos(2 * _RING_ANGLES), np.sin(2 * _RING_ANGLES)],

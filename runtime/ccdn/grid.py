@@ -399,8 +399,10 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             grown = True
             for parts in sampled.values():  # sampled while the board's corners were free: `free` changes only here
                 parts.clear()
-            free[idx[idx < n]] = False  # a board of another size still owns its corners
+            free[idx[idx < n]] = False  # a board of another size still owns its corners, and so does a grid of lines
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
+            if grower.line_grid():  # a grid of lines: no board (ccdn.cleanup)
+                continue
             added.extend(grower.added)
             growers.append(grower)
     _bridge_leftovers(growers, free)
