@@ -212,6 +212,7 @@ def _pull_steps() -> np.ndarray:
 
 
 _PULL_STEPS = _pull_steps()
+
 _RING_ANGLES = np.arange(16) * (2 * np.pi / 16)
 _RING_COS, _RING_SIN = np.cos(_RING_ANGLES), np.sin(_RING_ANGLES)
 _RING_HARMONICS = np.stack([_RING_COS, _RING_SIN, np.cos(2 * _RING_ANGLES), np.sin(2 * _RING_ANGLES)],

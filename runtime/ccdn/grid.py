@@ -399,7 +399,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             grown = True
             for parts in sampled.values():  # sampled while the board's corners were free: `free` changes only here
                 parts.clear()
-            free[idx[idx < n]] = False  # a board of another size still owns its corners, and so does a grid of lines
+            free[idx[idx < n]] = False  # a board of another size still owns its corners, so does a grid of lines
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
             if grower.line_grid():  # a grid of lines: no board (ccdn.cleanup)
                 continue
