@@ -25,6 +25,7 @@ from .stats import vector_lengths
 BRIDGE_REACH = 0.15  # x the shorter projected step: how far a corner beyond a gap may lie from its lattice position
 BRIDGE_SPAN = 2  # x the board's longer side: how far beyond it a piece may lie
 BRIDGE_PIECE = 3  # lattice positions a piece beyond a gap holds, 4-connected, at least
+_DIAGONALS = np.array([[1.0, 1.0], [1.0, -1.0]])  # (col, row) -> (col + row, col - row): the outermost corners
 
 
 class Bridging:
@@ -41,11 +42,12 @@ class Bridging:
         points = self.pos[filled[:, 0], filled[:, 1]]
         # the homography through the board's 4 outermost corners (a least-squares fit cost 0.3 ms a frame),
         # checked for flatness only where a piece is found
-        ends = np.array([f(k) for k in (grid.sum(1), grid[:, 0] - grid[:, 1]) for f in (np.argmin, np.argmax)])
-        homography = cv2.getPerspectiveTransform(grid[ends].astype(np.float32), points[ends].astype(np.float32))
-        if abs(np.linalg.det(homography)) < 1e-12:  # collinear ends
-            return False
-        lattice = cv2.perspectiveTransform(self.xy[free][None], np.linalg.inv(homography))[0]
+        diagonals = grid @ _DIAGONALS  # (K, 2): col + row, col - row
+        ends = np.concatenate([diagonals.argmin(0), diagonals.argmax(0)])
+        corners, at = grid[ends].astype(np.float32), points[ends].astype(np.float32)
+        homography = cv2.getPerspectiveTransform(corners, at)
+        # collinear ends give a degenerate fit, which puts no corner near its lattice or fails looks_flat below
+        lattice = cv2.perspectiveTransform(self.xy[free][None], cv2.getPerspectiveTransform(at, corners))[0]
         cells = np.rint(lattice)  # (col, row) in board coordinates
         lo, hi = grid.min(0), grid.max(0)
         reach = BRIDGE_SPAN * ((hi - lo).max() + 1)  # a strip of a board reaches as far across as along

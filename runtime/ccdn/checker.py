@@ -194,11 +194,12 @@ def axis_pull(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) -> 
     quad's diagonals, and light between them: ~1 (NaN where a quad is off the image)."""
     p = np.atleast_2d(p)
     samples = sampler.mean(p + _combinations(u, v, _PULL_STEPS), _box_radius(u, v)).reshape(4, 9, -1)
-    centre, diagonal, axis = samples[:, 0], samples[:, 1:5].mean(1), samples[:, 5:].mean(1)  # (4, K) each
+    centre = samples[:, 0]  # (4, K)
+    pull = _PULL_WEIGHTS @ samples  # (4, K): the axis samples' mean minus the diagonal ones'
     middle = centre.mean(0)
     contrast = np.abs(centre - middle).mean(0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.fmax.reduce((axis - diagonal) * np.sign(middle - centre) / contrast, 0)
+        return np.fmax.reduce(pull * np.sign(middle - centre) / contrast, 0)
 
 
 def _pull_steps() -> np.ndarray:
@@ -212,6 +213,8 @@ def _pull_steps() -> np.ndarray:
 
 
 _PULL_STEPS = _pull_steps()
+_PULL_WEIGHTS = np.array([0.0] + [-0.25] * 4 + [0.25] * 4)  # a quad's 9 samples: + axis, - diagonal means
+_PULL_WEIGHTS.setflags(write=False)
 
 _RING_ANGLES = np.arange(16) * (2 * np.pi / 16)
 _RING_COS, _RING_SIN = np.cos(_RING_ANGLES), np.sin(_RING_ANGLES)
