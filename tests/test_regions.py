@@ -6,8 +6,7 @@ import cv2
 import numpy as np
 
 import ccdn
-from conftest import EXAMPLES
-from ccdn.regions import LOOK_AREA, LOOK_PEAK, LOOK_SCORE, MAX_BOXES, _nested, look_boxes
+from ccdn.regions import LOOK_SCORE, MAX_BOXES, _nested, look_boxes
 
 HALO = 12  # px: the paper net's receptive halo (ccdn.session)
 
@@ -61,29 +60,3 @@ def test_scattered_specks_run_in_boxes_unless_their_halos_and_calls_cost_more_th
     boxes = look_boxes(sparse, 2, (1500, 2000), HALO)
     assert len(boxes) == 100 > MAX_BOXES
     assert all(bottom - top <= 18 and right - left <= 18 for top, bottom, left, right in boxes)
-
-
-def test_a_weak_speck_gets_no_box_while_a_strong_or_wide_response_does():
-    """A component whose shrunk scores stay under LOOK_PEAK and cover fewer than LOOK_AREA pixels is
-    not looked at (clutter: no board's corners lay in such a box on 1780 cached frames)."""
-    score = np.zeros((240, 320), np.float32)
-    score[20, 20] = LOOK_PEAK * 0.9  # weak speck
-    score[100, 100] = LOOK_PEAK  # strong speck
-    score[180:190, 200:205] = LOOK_SCORE  # weak but wide: LOOK_AREA pixels
-    assert 10 * 5 >= LOOK_AREA
-    boxes = look_boxes(score, 2, (480, 640), HALO)
-    assert len(boxes) == 2 and not _inside(np.array([[40.0, 40.0]]), boxes).any()
-    assert _inside(np.array([[200.0, 200.0], [405.0, 365.0]]), boxes).all()
-
-
-def test_a_cluttered_boardless_frame_looks_at_its_strong_responses_only(monkeypatch):
-    """examples/no-board.jpg at 2000x1500: the halved frame's weak specks of clutter no longer get a
-    box of their own (LOOK_PEAK, LOOK_AREA), a third of them are left."""
-    gray = cv2.resize(cv2.imread(str(EXAMPLES / "no-board.jpg"), cv2.IMREAD_GRAYSCALE), (2000, 1500),
-                      interpolation=cv2.INTER_AREA)
-    score = ccdn.Detector("fast-int8", threads=2)._session.scores(cv2.resize(gray, (1000, 750),
-                                                                             interpolation=cv2.INTER_AREA))
-    strong = look_boxes(score, 2, gray.shape, HALO)
-    monkeypatch.setattr("ccdn.regions.LOOK_PEAK", LOOK_SCORE)
-    every = look_boxes(score, 2, gray.shape, HALO)
-    assert strong and every and 3 * len(strong) < len(every)

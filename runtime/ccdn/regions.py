@@ -7,13 +7,7 @@ close together to be told apart (measured on the stress renders that reach the f
 shrunk score within 2 px of nearly every true corner is >= 0.2). So the full-resolution network
 runs only on the boxes around the shrunk pixels scoring >= LOOK_SCORE, grown by LOOK_MARGIN
 shrunk pixels (a board's neighbouring corners the shrunk pass scored lower), and the rest of the
-score map is 0; a frame without any such response costs no full-resolution pass at all. Of those
-boxes only the ones where a shrunk score reaches LOOK_PEAK, or where LOOK_AREA shrunk pixels
-respond, are looked at: on 1780 cached frames (the four stress samples, 280 fresh renders, real-dev
-at three sizes) 99 % of the boxes that held a board's corners scored 1.09 or more, the weakest 0.56
-over 138 pixels, while clutter's weak specks made most of the boxes (`examples/no-board.jpg` at
-2000x1500: 136 boxes -> 28, the frame 282 -> 191 ms; boardless stress renders 36 -> 31 ms; every
-frame's output the same). Many
+score map is 0; a frame without any such response costs no full-resolution pass at all. Many
 scattered boxes (more than MAX_BOXES) are judged by their cost with their halos and network calls,
 which then add up; where the boxes would cost more than WHOLE_FRAME_SHARE of the frame, the whole
 frame runs.
@@ -26,8 +20,6 @@ import numpy as np
 
 LOOK_SCORE = 0.1  # shrunk score at or above which the full frame is looked at (the peaks' floor is 0.25)
 LOOK_MARGIN = 4  # shrunk px around those pixels
-LOOK_PEAK = 0.8  # a box is looked at where a shrunk score in it reaches this ...
-LOOK_AREA = 50  # ... or this many shrunk pixels of it score LOOK_SCORE
 MAX_BOXES = 64  # up to this many boxes (the stress renders have at most 30) their area alone decides; beyond it
 # their halos and calls count too (scattered specks: a 2000x1500 boardless frame's 144 boxes cost 210 ms where the
 # whole frame costs 615)
@@ -43,19 +35,14 @@ def look_boxes(score: np.ndarray, scale: int, shape: tuple[int, int], halo: int)
     from the `score` map of a pass on it shrunk `scale` times; [] when nothing responded, None when
     the whole frame is cheaper (most of it covered, or too many boxes)."""
     h, w = shape
-    responded = score >= LOOK_SCORE
-    if not responded.any():
+    look = (score >= LOOK_SCORE).astype(np.uint8)
+    if not look.any():
         return []
-    look = cv2.dilate(responded.view(np.uint8), np.ones((2 * LOOK_MARGIN + 1, 2 * LOOK_MARGIN + 1), np.uint8))
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(look, connectivity=8)
-    strong = np.bincount(labels[responded], minlength=count) >= LOOK_AREA
-    strong[labels[score >= LOOK_PEAK]] = True
-    stats = stats[strong]  # the background's label 0 scores under LOOK_SCORE
-    if len(stats) == 0:
-        return []
-    if len(stats) > MOST_BOXES:
+    look = cv2.dilate(look, np.ones((2 * LOOK_MARGIN + 1, 2 * LOOK_MARGIN + 1), np.uint8))
+    count, _, stats, _ = cv2.connectedComponentsWithStats(look, connectivity=8)
+    if count - 1 > MOST_BOXES:
         return None
-    x, y, bw, bh = (stats[:, i].astype(np.int64) for i in range(4))
+    x, y, bw, bh = (stats[1:, i].astype(np.int64) for i in range(4))
     small_h, small_w = score.shape
     # a box at the shrunk frame's far edge reaches the full frame's (a shrunk frame drops h % scale rows)
     bottom = np.where(y + bh >= small_h, h, (y + bh) * scale)
