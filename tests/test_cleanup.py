@@ -153,3 +153,21 @@ def test_a_grid_of_thick_lines_is_no_board(monkeypatch):
         pull = axis_pull(Sampler(image), found.xy[known].astype(np.float64), steps[known, 0], steps[known, 2])
         assert expected[0] < np.nanmedian(pull) < expected[1]
     assert len(grid) > 1000
+
+
+@pytest.mark.parametrize("subset, seed", [("dark", 7_070_555), ("inverted", 7_110_072)])
+def test_a_short_outer_line_whose_half_edges_run_into_the_margin_is_dropped(subset, seed, monkeypatch):
+    """Beyond a board's last column, clutter that continues its pattern let 2 outline points pass as
+    a column 2/6 of the inner one's length (dark render 7070555, a fresh seed; inverted 7110072,
+    README's sample): too long for a stub (OUTLINE_STUB), but each has a half-edge running into the
+    margin (Cleanup._uneven_line). Every corner found is a true one; without the test, 2 are not."""
+    import ccdn
+    scene = stress_scene(subset, seed)
+
+    def off_the_labels(xy):
+        return int((np.linalg.norm(xy[:, None] - scene.corners[None], axis=2).min(1) > 3).sum())
+
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert off_the_labels(result.xy) == 0 and nearest_distances(result.xy, scene.corners).max() < 0.5
+    monkeypatch.setattr("ccdn.cleanup.OUTLINE_SHORT", 0.0)
+    assert off_the_labels(ccdn.Detector(threads=2).detect(scene.image).xy) == 2

@@ -29,14 +29,17 @@ import math
 import cv2
 import numpy as np
 
-from .checker import axis_pull
+from .checker import altitude, axis_pull
+from .edges import MIN_ASPECT, half_edge_contrast
 from .lattice import bends, project_with_steps, row_col_neighbours, shorter_length
 from .stats import nanmedian_rows, vector_lengths
 
 MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sharper turn is a wrong corner
 # where it also moves the shorter step's end ccdn.lattice.KINK_PX (bends)
 HIDDEN_EDGES = 0.6  # prune keeps a corner whose neighbours are hidden if its half-edges are this even (_hidden_around)
-OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact
+OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact ...
+OUTLINE_SHORT = 0.6  # ... and one this short whose corners' half-edges are uneven (OUTLINE_EVEN; trim_outline)
+OUTLINE_EVEN = 0.5  # of the strongest half-edge's log-scale contrast, each of a corner's four at least
 BRIDGE = 0.4  # an inner line this short against both lines beside it joins two boards (Cleanup.split_at_bridge) ...
 MIN_BRIDGED = 4  # ... where each of those holds this many corners ...
 SEAM_RESIDUAL = 0.1  # ... and a homography fitted to the three lines misses one by this x the shorter step
@@ -127,20 +130,24 @@ class Cleanup:
 
     def trim_outline(self) -> None:
         """Drop an outermost row or column that is a stub of the line inside it (at most
-        OUTLINE_STUB of its length) where the rest of it would lie inside the frame: beyond a
-        board's edge, clutter that continues its pattern for a few squares lets the outline pass
-        the image test there (on the stress renders, every false positive of the clean,
-        motion-blur, defocus, low-contrast and two-boards subsets lay on such a stub). A line that
-        the frame cuts keeps its corners."""
+        OUTLINE_STUB of its length, or OUTLINE_SHORT where most of its corners' half-edges are
+        uneven: _uneven_line) where the rest of it would lie inside the frame: beyond a board's
+        edge, clutter that continues its pattern for a few squares lets the outline pass the image
+        test there (on the stress renders, every false positive of the clean, motion-blur, defocus,
+        low-contrast and two-boards subsets lay on such a stub). A line that the frame cuts keeps
+        its corners."""
         filled = self.idx >= 0
         drop = np.zeros_like(filled)
-        for grid, mask, pos in ((filled, drop, self.pos), (filled.T, drop.T, self.pos.transpose(1, 0, 2))):  # rows, columns
+        for columns, grid, mask, pos in ((False, filled, drop, self.pos),
+                                         (True, filled.T, drop.T, self.pos.transpose(1, 0, 2))):
             lines = np.nonzero(grid.any(1))[0]
             if len(lines) < 3:
                 continue
             for outer, step in ((lines[0], 1), (lines[-1], -1)):
                 inner = outer + step
-                if grid[outer].sum() > OUTLINE_STUB * grid[inner].sum():
+                if grid[outer].sum() > OUTLINE_STUB * grid[inner].sum() and not (
+                        grid[outer].sum() <= OUTLINE_SHORT * grid[inner].sum()
+                        and self._uneven_line(np.nonzero(grid[outer])[0], outer, columns)):
                     continue
                 missing = grid[inner] & ~grid[outer]
                 beyond = 2 * pos[inner, missing] - pos[inner + step, missing]  # where the outer corners would be
@@ -149,6 +156,32 @@ class Cleanup:
                     mask[outer] |= grid[outer]
         self.idx[drop] = -1
         self.pos[drop] = np.nan
+
+    def _uneven_line(self, positions: np.ndarray, line: int, columns: bool) -> bool:
+        """Whether most corners of canvas row `line` (columns: column) at `positions` along it have a
+        half-edge under OUTLINE_EVEN of their strongest on the log scale (as _even_edges judges):
+        where a board's outline runs along clutter that continues its pattern, the points beyond
+        its last line have one running into the margin. False for a single corner, when not
+        completing (no image at hand) or when fewer than half of them can be judged: squares thinner than
+        ccdn.edges.MIN_ASPECT (steep views: their half-edge profiles are no judge), a half-edge
+        off the frame (a board the frame cuts)."""
+        if self.gray is None or len(positions) < 2:  # a lone corner: the last visible one where the frame cuts
+            return False
+        cells = np.stack([positions, np.full(len(positions), line)], 1) if columns else \
+            np.stack([np.full(len(positions), line), positions], 1)
+        u, v = self._axes(cells)
+        with np.errstate(invalid="ignore"):  # NaN steps: not judged
+            wide = altitude(u, v) >= MIN_ASPECT * np.fmax(vector_lengths(u), vector_lengths(v))
+        if 2 * int(wide.sum()) < len(cells):  # squares too thin for half-edge profiles (steep views): kept
+            return False
+        u, v = u[wide], v[wide]
+        contrast = half_edge_contrast(self._log_gray(), self.pos[cells[wide, 0], cells[wide, 1]],
+                                      np.stack([u, -u, v, -v], 1))
+        judged = np.isfinite(contrast).all(1)  # a half-edge off the frame (a board the frame cuts): not judged
+        if 2 * int(judged.sum()) < len(cells):
+            return False
+        uneven = contrast[judged].min(1) < OUTLINE_EVEN * contrast[judged].max(1)
+        return 2 * int(uneven.sum()) > len(cells)
 
     def split_at_bridge(self) -> None:
         """Cut the grid at a seam between two boards grown into one, keeping the larger side: an inner
