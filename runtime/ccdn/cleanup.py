@@ -48,8 +48,8 @@ LINE_GRID_CORNERS = 16  # ... over this many of its corners at most
 
 
 class Cleanup:
-    """Grower's steps after growth: a mixin that uses its canvas (idx, pos, origin), sampler and its
-    tests (_predict, _axes, _accepts, _even_edges)."""
+    """Grower's steps after growth: a mixin that uses its canvas (idx, pos, origin), sampler, image
+    on the log scale (_log_gray) and its tests (_predict, _axes, _accepts, _even_edges)."""
 
     def unkink(self) -> None:
         """Drop corners until no row or column turns by more than MAX_TURN degrees between consecutive
@@ -162,9 +162,9 @@ class Cleanup:
         half-edge under OUTLINE_EVEN of their strongest on the log scale (as _even_edges judges):
         where a board's outline runs along clutter that continues its pattern, the points beyond
         its last line have one running into the margin. False for a single corner, when not
-        completing (no image at hand) or when fewer than half of them can be judged: squares thinner than
-        ccdn.edges.MIN_ASPECT (steep views: their half-edge profiles are no judge), a half-edge
-        off the frame (a board the frame cuts)."""
+        completing (no image at hand) or when fewer than half of them can be judged: squares
+        thinner than ccdn.edges.MIN_ASPECT (steep views: their half-edge profiles are no judge), a
+        half-edge off the frame (a board the frame cuts)."""
         if self.gray is None or len(positions) < 2:  # a lone corner: the last visible one where the frame cuts
             return False
         cells = np.stack([positions, np.full(len(positions), line)], 1) if columns else \
