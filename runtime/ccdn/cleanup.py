@@ -29,8 +29,8 @@ import math
 import cv2
 import numpy as np
 
-from .checker import altitude, axis_pull
-from .edges import MIN_ASPECT, half_edge_contrast
+from .checker import axis_pull
+from .edges import wide_squares
 from .lattice import bends, project_with_steps, row_col_neighbours, shorter_length
 from .stats import nanmedian_rows, vector_lengths
 
@@ -48,8 +48,8 @@ LINE_GRID_CORNERS = 16  # ... over this many of its corners at most
 
 
 class Cleanup:
-    """Grower's steps after growth: a mixin that uses its canvas (idx, pos, origin), sampler, image
-    on the log scale (_log_gray) and its tests (_predict, _axes, _accepts, _even_edges)."""
+    """Grower's steps after growth: a mixin that uses its canvas (idx, pos, origin), sampler and its
+    tests (_predict, _axes, _accepts, _even_edges, _half_edges)."""
 
     def unkink(self) -> None:
         """Drop corners until no row or column turns by more than MAX_TURN degrees between consecutive
@@ -145,9 +145,10 @@ class Cleanup:
                 continue
             for outer, step in ((lines[0], 1), (lines[-1], -1)):
                 inner = outer + step
-                if grid[outer].sum() > OUTLINE_STUB * grid[inner].sum() and not (
-                        grid[outer].sum() <= OUTLINE_SHORT * grid[inner].sum()
-                        and self._uneven_line(np.nonzero(grid[outer])[0], outer, columns)):
+                count, inside = grid[outer].sum(), grid[inner].sum()
+                stub = count <= OUTLINE_STUB * inside or (
+                    count <= OUTLINE_SHORT * inside and self._uneven_line(np.nonzero(grid[outer])[0], outer, columns))
+                if not stub:
                     continue
                 missing = grid[inner] & ~grid[outer]
                 beyond = 2 * pos[inner, missing] - pos[inner + step, missing]  # where the outer corners would be
@@ -167,16 +168,14 @@ class Cleanup:
         half-edge off the frame (a board the frame cuts)."""
         if self.gray is None or len(positions) < 2:  # a lone corner: the last visible one where the frame cuts
             return False
-        cells = np.stack([positions, np.full(len(positions), line)], 1) if columns else \
-            np.stack([np.full(len(positions), line), positions], 1)
+        cells = np.stack([np.full(len(positions), line), positions], 1)  # (row, col)
+        if columns:
+            cells = cells[:, ::-1]
         u, v = self._axes(cells)
-        with np.errstate(invalid="ignore"):  # NaN steps: not judged
-            wide = altitude(u, v) >= MIN_ASPECT * np.fmax(vector_lengths(u), vector_lengths(v))
+        wide = wide_squares(u, v)
         if 2 * int(wide.sum()) < len(cells):  # squares too thin for half-edge profiles (steep views): kept
             return False
-        u, v = u[wide], v[wide]
-        contrast = half_edge_contrast(self._log_gray(), self.pos[cells[wide, 0], cells[wide, 1]],
-                                      np.stack([u, -u, v, -v], 1))
+        contrast = self._half_edges(self.pos[cells[wide, 0], cells[wide, 1]], u[wide], v[wide])
         judged = np.isfinite(contrast).all(1)  # a half-edge off the frame (a board the frame cuts): not judged
         if 2 * int(judged.sum()) < len(cells):
             return False

@@ -159,8 +159,13 @@ class Completion:
         """(K,) whether the four half-edges of corners at points (steps u, v) each show at least
         `share` of the strongest one's contrast on the log scale (ccdn.edges.half_edge_contrast): on a
         board's outline one runs into the margin."""
-        contrast = half_edge_contrast(self._log_gray(), points, np.stack([u, -u, v, -v], 1))
+        contrast = self._half_edges(points, u, v)
         return contrast.min(1) >= share * contrast.max(1)  # NaN (off the image): not
+
+    def _half_edges(self, points: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(K, 4): the log-scale contrast across the four half-edges of corners at points (steps u, v;
+        ccdn.edges.half_edge_contrast), NaN where one runs off the image."""
+        return half_edge_contrast(self._log_gray(), points, np.stack([u, -u, v, -v], 1))
 
     def _in_shade(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(K,) whether the quads around points (canvas cells, steps u, v) look like the board's in

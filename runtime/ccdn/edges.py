@@ -125,11 +125,15 @@ def on_straight_lines(board: Board, steps: np.ndarray) -> np.ndarray:
     if homography is None:
         return np.zeros(len(board), bool)
     residual = vector_lengths(cv2.perspectiveTransform(grid[None], homography)[0] - xy)
-    lengths = vector_lengths(steps)
-    with np.errstate(invalid="ignore", divide="ignore"):  # NaN steps (no neighbour either way): not picked
-        aspect = altitude(steps[:, 0], steps[:, 2]) / np.fmax(lengths[:, 0], lengths[:, 2])
     flat = median(residual) < FLAT_BOARD * median_step(steps)
-    return flat & (aspect >= MIN_ASPECT)
+    return flat & wide_squares(steps[:, 0], steps[:, 2])
+
+
+def wide_squares(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(K,) whether the squares of lattice steps u, v (K, 2) are no thinner than MIN_ASPECT of the
+    longer step, wide enough for edge profiles across them (NaN steps: not)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return altitude(u, v) / np.fmax(vector_lengths(u), vector_lengths(v)) >= MIN_ASPECT
 
 
 def refine_on_edges(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
