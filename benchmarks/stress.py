@@ -6,7 +6,9 @@ fisheye, strong barrel distortion, motion blur, defocus, heavy noise, low contra
 small squares (6-10 px), extreme pose (tilt 60-75 deg), inverted intensity, two boards, partial boards
 (large squares running off the frame), occluders, no board, a deep shadow (a polygon taking 80-95 %
 of the light, its edge blurred 1-15 px: the lit part of a board 5-20x the contrast of its shaded
-part). Blur kernels and glare keep the renderer's own ranges (motion 3-9 px, defocus radius 1-3 px).
+part), markers (a ChArUco-style board: a random 5 x 5-bit marker with a dark border, 0.6-0.8 of the
+square's side, in every light square; the labels are the checker corners). Blur kernels and glare
+keep the renderer's own ranges (motion 3-9 px, defocus radius 1-3 px).
 
 A render joins its subset only if it shows that condition and no other (`shows_condition`): the board
 wholly in frame (its outer squares too, as OpenCV needs) with every inner corner countable; except that
@@ -87,6 +89,7 @@ SUBSETS: dict[str, dict] = {  # name -> SceneConfig fields changed from CALM; or
     "occluded": {"p_occluder": 1.0},
     "no-board": {"p_no_board": 1.0},
     "shadow": {"p_shadow": 1.0, "shadow_depth": (0.8, 0.95)},
+    "markers": {"p_markers": 1.0},
 }
 
 

@@ -94,6 +94,26 @@ def test_rendered_labels_sit_on_the_saddle_points(lens):
     assert np.median(err) < (0.1 if lens == "fisheye" else 0.05)
 
 
+def test_markers_darken_only_light_squares_away_from_the_corners():
+    """A ChArUco-style board (p_markers) is the same board with dark marker bits inside its light
+    squares: the labels stay, the dark squares and each corner's surroundings inside the markers'
+    light border keep their grey levels, and the draw is skipped entirely when markers are off."""
+    calm = dict(p_no_board=0, p_two_boards=0, p_occluder=0, p_blur=0, p_motion=0, p_defocus=0, noise_sigma=(0, 0),
+                p_jpeg=0, p_glare=0, p_shadow=0, p_dark=0, p_low_contrast=0, p_invert=0, square_px=(40, 50),
+                max_tilt_deg=20, p_radial=0, p_fisheye=0)
+    plain = render_scene(np.random.default_rng(5), SceneConfig(**calm))
+    marked = render_scene(np.random.default_rng(5), SceneConfig(**calm, p_markers=1.0, marker_ratio=(0.6, 0.6)))
+    assert np.array_equal(plain.corners, marked.corners) and len(plain.corners) >= 9
+    changed = np.argwhere(marked.image.astype(int) != plain.image.astype(int))[:, ::-1]  # (x, y)
+    assert len(changed) > 20 * len(plain.corners)  # a marker in every light square
+    assert (marked.image.astype(int) <= plain.image.astype(int)).all()  # markers only darken
+    assert (plain.image[changed[:, 1], changed[:, 0]] > plain.image.mean()).all()  # ... light squares
+    near = np.linalg.norm(changed[:, None] - plain.corners[None], axis=2).min(1)
+    assert near.min() > 0.2 * 40 / np.sqrt(2) * 0.9  # the light border: 0.2 of a square each side, less the AA
+    off = render_scene(np.random.default_rng(5), SceneConfig(**calm, p_markers=0.0, marker_ratio=(0.6, 0.6)))
+    assert np.array_equal(off.image, plain.image)
+
+
 def test_motion_blur_keeps_the_labels_on_the_corners():
     """A blur kernel must not shift the image against its labels (even-length kernels did, by up
     to half a pixel): cornerSubPix on motion-blurred renders lands on the labels."""

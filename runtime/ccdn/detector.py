@@ -254,7 +254,7 @@ class Detector:
             complete = self.filter == "grid"
             found = settled(find_boards(gray, refined, values, board_size, complete=complete,
                                         uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0,
-                                        shade_unfound=shade_unfound), gray.shape)
+                                        shade_unfound=shade_unfound, markers=shade_unfound), gray.shape)
             if complete:
                 refined, values = _with_completed(refined, values, found, score, scale)
             if complete or board_size is not None:

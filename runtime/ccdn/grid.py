@@ -46,6 +46,17 @@ square's corners (1300 cached stress renders: 3 such boards of 12-20 corners, 48
 false positive more; asked on every pass where no board was found before, it cost a boardless
 frame a quarter more time; now 4-14 %, and nothing where a board is found).
 
+Markers (the detector's full-frame pass): a ChArUco-style board holds a marker in each light
+square, 0.6-0.8 of its side, whose bits make those quads anything but uniform, so no seed square
+passes and the board is lost although the network finds its corners. Where the search (and the
+levelled one) finds no board, it runs once more with the seed squares' quads sampled MARKER_QUADS
+of the lattice steps from their corners, inside the markers' light border, where every quad is
+uniform again, and with the corner-like seeds only (the plain ones found no more on marked boards
+and cost a boardless 2000x1500 frame 20 ms). Growth's own image test passes such corners as they
+are. A board so found is kept only where its light quads do hold markers (_marked: their samples
+range much more than its dark quads'); a plain board it finds (e.g. one whose seed squares an
+occluder spoils) took outline points with it. Only frames where nothing else is found can change.
+
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
 2. Which grid axis is "col": the one fixed by `board_size` when it is given and not square;
@@ -70,10 +81,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checker import Sampler, x_like
+from .checker import Sampler, quad_levels, x_like
 from .edges import lattice_steps, median_step
 from .growth import Grower
-from .lattice import held_on_two_sides, inside_margin
+from .lattice import SEED_AXES, SEED_REACH_UNIFORM, distances, held_on_two_sides, inside_margin
 from .seeds import SEED_CHUNK, SEED_REACH, seed_squares
 from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from .stats import median, vector_lengths
@@ -82,6 +93,10 @@ MIN_CORNERS = 8
 MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board behind another (module docstring)
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 BEHIND_UNEVEN = 2  # corners of a seed square with non-uniform quads in the last round (module docstring)
+SAME_CORNER_PX = 1.0  # a free corner this close to one a board completed from the image is that corner
+MARKER_QUADS = 0.15  # share of the lattice steps where the search for a marked board samples seed squares' quads
+MARKED = 0.5  # a board found so holds markers where its light quads' samples range this much more than its dark ones'
+# (of their contrast; _marked)
 SAMPLED_REACH = 4.0  # x the corners' median gap: how far around them find_boards' Sampler integrates the image
 # (ccdn.checker.Sampler; real-dev frames at 4000x3000: 12.3 -> 6.0 Mpx a frame; 2 and 3 grew the window more often)
 SHADE_SPREAD = 2.0  # a board lit more unevenly (ccdn.shade.light_spread) is searched for again, levelled: 1.5 found
@@ -154,8 +169,8 @@ def indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Boar
 
 
 def _sampled_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
-                     sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]], levels: tuple[int, ...]
-                     ) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
+                     sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]], levels: tuple[int, ...],
+                     quads: float) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
     """A later round's squares (levels[0] uneven corners) of the free `seeds` and each seed's row in
     them: those the earlier rounds sampled since the last board was grown (sampled[levels[0]]:
     (seeds, their squares)) as they are, the others sampled now, at all the `levels` still to come
@@ -166,18 +181,19 @@ def _sampled_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighb
         known[ahead] = True
     if not known[seeds].all():
         stale = seeds[~known[seeds]]
-        fresh.append((stale, _sample_ahead(xy, sampler, stale, neighbours, free, sampled, levels)))
+        fresh.append((stale, _sample_ahead(xy, sampler, stale, neighbours, free, sampled, levels, quads)))
     ahead = np.concatenate([a for a, _ in fresh])
     squares = tuple(np.concatenate(parts) for parts in zip(*(q for _, q in fresh)))
     return squares, dict(zip(ahead.tolist(), range(len(ahead))))  # a seed sampled twice: its last row
 
 
 def _sample_ahead(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
-                  sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]], levels: tuple[int, ...]
-                  ) -> tuple[np.ndarray, ...]:
-    """The squares of `seeds` at levels[0] uneven corners (seed_squares); their squares at the further
-    `levels`, from the same sampling, go to `sampled` for the rounds to come."""
-    now, *later = seed_squares(xy, sampler, seeds, neighbours[seeds], free, levels)
+                  sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]], levels: tuple[int, ...],
+                  quads: float) -> tuple[np.ndarray, ...]:
+    """The squares of `seeds` at levels[0] uneven corners (seed_squares, their quads sampled at `quads`
+    of the steps); their squares at the further `levels`, from the same sampling, go to `sampled` for
+    the rounds to come."""
+    now, *later = seed_squares(xy, sampler, seeds, neighbours[seeds], free, levels, quads)
     for level, squares in zip(levels[1:], later):
         sampled[level].append((seeds, squares))
     return now
@@ -202,6 +218,15 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     if len(idx) < MIN_CORNERS or (grid.max(0) - grid.min(0) + 1).min() < MIN_EXTENT:
         return None
     return grower
+
+
+def _cover_completed(free: np.ndarray, xy: np.ndarray, completed: np.ndarray) -> None:
+    """Mark the free corners within SAME_CORNER_PX of a board's `completed` corners (its fits from the
+    image) as taken: the same corners, which growth's test refused (on a marked board, the markers'
+    own corners crowd them) and completion then fitted; left free, a later board took them twice."""
+    if len(completed) and free.any():
+        candidates = np.nonzero(free)[0]
+        free[candidates[distances(xy[candidates], completed).min(1) < SAME_CORNER_PX]] = False
 
 
 def _bridge_leftovers(growers: list[Grower], free: np.ndarray) -> None:
@@ -283,7 +308,7 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size: tuple[int, int] | None = None,
                 *, allow_partial: bool = False, complete: bool = False, uneven_seeds: int = 0,
-                shade_unfound: bool = False) -> tuple[Board, ...]:
+                shade_unfound: bool = False, markers: bool = False) -> tuple[Board, ...]:
     """Link corners into checkerboards: the boards found, largest first (ties: top, then left).
 
     gray: (H, W) uint8 image the corners come from. xy: (N, 2) corner positions (x, y), (0, 0) the
@@ -296,6 +321,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     uneven_seeds: how many corners of a seed square may have non-uniform quads (0 or 1) before the last round
     (module docstring). shade_unfound (with complete): where no board is found, also search the
     levelled frame when the corner-like points lie in uneven light (module docstring, Shade).
+    markers: where no board is found, search again for a board with markers in its light squares
+    (module docstring, Markers).
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
@@ -323,7 +350,28 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
                         uneven_seeds)
         if sum(map(len, again)) > sum(map(len, boards)):
             boards = again
+    if markers and not boards:  # a ChArUco-style board (module docstring, Markers)
+        found = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete, uneven_seeds,
+                        MARKER_QUADS, plain_seeds=0)
+        boards = tuple(board for board in found if _marked(sampler, board))
     return boards
+
+
+def _marked(sampler: Sampler, board: Board) -> bool:
+    """Whether a board's light squares hold markers: over its corners (median), the range of the
+    samples inside its light quads, less that inside its dark quads, exceeds MARKED of the contrast
+    between them (a seed's samples: ccdn.checker.quad_levels; the light quads are those whose
+    lightest samples are lighter). A plain board's quads are all uniform: ~0."""
+    steps = lattice_steps(board)[:, [0, 2]]  # +col, +row
+    stepped = np.isfinite(steps).all((1, 2))  # NaN: no neighbour along a row or a column
+    _, low, high = quad_levels(sampler, board.xy[stepped].astype(np.float64), steps[stepped, 0], steps[stepped, 1],
+                               SEED_REACH_UNIFORM, SEED_AXES)
+    spread = high - low  # (4 quads, K): own-parity quads 0 and 3, the others 1 and 2
+    own, other = high[[0, 3]].mean(0), high[[1, 2]].mean(0)
+    own_spread, other_spread = spread[[0, 3]].mean(0), spread[[1, 2]].mean(0)
+    excess = np.where(own > other, own_spread - other_spread, other_spread - own_spread)
+    known = np.isfinite(excess)
+    return bool(known.any() and median(excess[known]) > MARKED * median(np.abs(own - other)[known]))
 
 
 def _shaded_square(gray: np.ndarray, sampler: Sampler, boards: tuple[Board, ...]) -> float | None:
@@ -351,13 +399,15 @@ def _unlit_square(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray) -> tuple[f
 
 def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarray, neighbours: np.ndarray,
             gaps: np.ndarray, board_size: tuple[int, int] | None, allow_partial: bool, complete: bool,
-            uneven_seeds: int) -> tuple[Board, ...]:
+            uneven_seeds: int, quads: float = 1.0, plain_seeds: int = MAX_PLAIN_SEEDS) -> tuple[Board, ...]:
     """find_boards' search on `gray` (sampled by `sampler`) for corners xy with their nearest
-    neighbours (nearest_neighbours) and gaps (distance to the nearest)."""
+    neighbours (nearest_neighbours) and gaps (distance to the nearest); quads: where seed squares'
+    quads are sampled, as a share of the lattice steps (seed_squares); plain_seeds: how many seeds
+    to try among the corners that fail the ring test (module docstring)."""
     n = len(xy)
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     corner_like = x_like(gray, xy, gaps)[order]
-    seeds = np.concatenate([order[corner_like], order[~corner_like][:MAX_PLAIN_SEEDS]])
+    seeds = np.concatenate([order[corner_like], order[~corner_like][:plain_seeds]])
     free = inside_margin(xy, gray.shape)  # corners at the frame's edge are in no board
     growers: list[Grower] = []
     added: list[np.ndarray] = []
@@ -378,19 +428,19 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
         if uneven != 0 and free[seeds].any():  # the earlier rounds sampled this round's squares too, since the
             # last board grew
             squares, batch = _sampled_squares(xy, sampler, seeds[free[seeds]], neighbours, free, sampled,
-                                              levels[round_index:])
+                                              levels[round_index:], quads)
         for k, s in enumerate(seeds.tolist()):
             if not free[s]:
                 continue
             if s not in batch:
                 ahead = seeds[k:][free[seeds[k:]]][:size]
                 size = min(4 * size, SEED_CHUNK)  # the first seed usually finds the board
-                squares = _sample_ahead(xy, sampler, ahead, neighbours, free, sampled, levels[round_index:])
+                squares = _sample_ahead(xy, sampler, ahead, neighbours, free, sampled, levels[round_index:], quads)
                 batch = dict(zip(ahead.tolist(), range(len(ahead))))
             square = [part[batch[s]] for part in squares]
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
-                                                            (uneven,))[0]]
+                                                            (uneven,), quads)[0]]
             grower = (_grow_board(xy, free, sampler, gray if complete else None, added, square, gaps, score)
                       if square[0] else None)
             if grower is None:
@@ -400,6 +450,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             for parts in sampled.values():  # sampled while the board's corners were free: `free` changes only here
                 parts.clear()
             free[idx[idx < n]] = False  # a board of another size still owns its corners, so does a grid of lines
+            _cover_completed(free, xy, grower.points(idx[idx >= n]))
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
             if grower.line_grid():  # a grid of lines: no board (ccdn.cleanup)
                 continue

@@ -30,12 +30,14 @@ def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray,
-                  free: np.ndarray, uneven: tuple[int, ...] = (0,)) -> list[tuple[np.ndarray, ...]]:
+                  free: np.ndarray, uneven: tuple[int, ...] = (0,), quads: float = 1.0) -> list[tuple[np.ndarray, ...]]:
     """A verified square at each seed corner, all seeds at once (neighbours (S, K): each seed's
     nearest corners, nearest first; only free ones count), for each count in `uneven` of a square's
     corners that may have non-uniform quads (0, 1 or BEHIND_UNEVEN, strictest first; find_boards):
     one sampling serves them all (a looser count's shortest passing square is among the squares
     sampled for the strictest, which samples further only for the seeds none of whose shortest passed).
+    quads: the share of the lattice steps the corners' quads are sampled at (ccdn.grid.MARKER_QUADS:
+    near the corner, inside a marked square's light border).
 
     A square is p, p + u, p + v and a fourth corner near p + u + v, with u, v from the seed's
     SEED_NEIGHBOURS nearest free corners, whose four corners pass the image test; of the passing
@@ -44,7 +46,8 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
     like image +x, +y), the board's sign (S,) (+: quads of even row + col are light) and contrast (S,).
     """
     if len(seeds) > SEED_CHUNK:  # bounds the (seeds x pairs x neighbours) arrays
-        parts = [seed_squares(xy, sampler, seeds[k : k + SEED_CHUNK], neighbours[k : k + SEED_CHUNK], free, uneven)
+        parts = [seed_squares(xy, sampler, seeds[k : k + SEED_CHUNK], neighbours[k : k + SEED_CHUNK], free, uneven,
+                              quads)
                  for k in range(0, len(seeds), SEED_CHUNK)]
         return [tuple(np.concatenate(arrays) for arrays in zip(*level)) for level in zip(*parts)]
     n_seeds = len(seeds)
@@ -100,20 +103,22 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
         if len(t) == 0:  # usually the second round: every seed passed with one of its shortest
             continue
         # many squares: the seed corner alone first (passing needs its 4 quad pairs to differ one way by MIN_CONTRAST)
+        su, sv = quads * uu[t], quads * vv[t]
         if len(t) > FEW_SQUARES:
-            seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM,
+            seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], su, sv, SEED_REACH_UNIFORM,
                                                        SEED_AXES)
             alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
             t, seed_diffs, seed_spread = t[alternating], seed_diffs[alternating], seed_spread[alternating]
             if len(t) == 0:
                 continue
-            diffs, spread = quad_differences(sampler, xy[square[t, 1:].ravel()], np.repeat(uu[t], 3, 0),
-                                             np.repeat(vv[t], 3, 0), SEED_REACH_UNIFORM, SEED_AXES)
+            su, sv = su[alternating], sv[alternating]
+            diffs, spread = quad_differences(sampler, xy[square[t, 1:].ravel()], np.repeat(su, 3, 0),
+                                             np.repeat(sv, 3, 0), SEED_REACH_UNIFORM, SEED_AXES)
             diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
             spread = np.concatenate([seed_spread[:, None], spread.reshape(-1, 3)], 1)
         else:  # all four corners in one call (a square that fails the seed corner's test fails `even` below)
-            diffs, spread = quad_differences(sampler, xy[square[t].ravel()], np.repeat(uu[t], 4, 0),
-                                             np.repeat(vv[t], 4, 0), SEED_REACH_UNIFORM, SEED_AXES)
+            diffs, spread = quad_differences(sampler, xy[square[t].ravel()], np.repeat(su, 4, 0),
+                                             np.repeat(sv, 4, 0), SEED_REACH_UNIFORM, SEED_AXES)
             diffs, spread = diffs.reshape(-1, 4, 4), spread.reshape(-1, 4)
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)

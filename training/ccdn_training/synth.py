@@ -66,6 +66,8 @@ class SceneConfig:
     p_glare: float = 0.15
     p_shadow: float = 0.2
     shadow_depth: tuple[float, float] = (0.3, 0.75)  # share of the light a shadow takes away
+    p_markers: float = 0.0  # a ChArUco-style board: a random 5x5-bit marker in each light square (0: no draw)
+    marker_ratio: tuple[float, float] = (0.6, 0.8)  # the marker's side, of the square's
     board_sizes: list[tuple[int, int]] | None = None  # None: paper sizes and 3..15 random
 
 
@@ -162,6 +164,8 @@ class Board:
     homography: np.ndarray  # maps (u, v, 1), u along cols in squares, to ideal pixels
     dark: float
     light: float
+    markers: np.ndarray | None = None  # (rows + 1, cols + 1, 7, 7) bool: dark marker bits per square (ChArUco-style)
+    marker_ratio: float = 0.0  # the markers' side, of a square's
 
     def inner_corners(self) -> tuple[np.ndarray, np.ndarray]:
         """Ideal-pixel positions (N, 2) of the inner corners and their (row, col), row-major."""
@@ -186,8 +190,23 @@ class Board:
         on_board = front & (u >= -m) & (u <= self.cols + 1 + m) & (v >= -m) & (v <= self.rows + 1 + m)
         in_squares = (u >= 0) & (u <= self.cols + 1) & (v >= 0) & (v <= self.rows + 1)
         parity = (np.floor(u) + np.floor(v)) % 2 == 0  # top-left square is dark
-        value = np.where(in_squares & parity, self.dark, self.light)
+        dark = in_squares & parity
+        if self.markers is not None:  # light squares hold markers: 7 x 7 cells, the outer ring dark
+            dark |= in_squares & ~parity & self._marker_bits(u, v)
+        value = np.where(dark, self.dark, self.light)
         return value.astype(np.float32), on_board
+
+    def _marker_bits(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Whether board points (u, v) (squares) fall on a dark bit of their square's marker."""
+        rows, cols = self.markers.shape[:2]
+        col = np.clip(np.floor(u), 0, cols - 1).astype(np.int64)
+        row = np.clip(np.floor(v), 0, rows - 1).astype(np.int64)
+        border = (1 - self.marker_ratio) / 2
+        fu, fv = (u - np.floor(u) - border) / self.marker_ratio, (v - np.floor(v) - border) / self.marker_ratio
+        inside = (fu >= 0) & (fu < 1) & (fv >= 0) & (fv < 1)
+        bu = np.clip((fu * 7).astype(np.int64), 0, 6)
+        bv = np.clip((fv * 7).astype(np.int64), 0, 6)
+        return inside & self.markers[row, col, bv, bu]
 
 
 def random_board_size(rng: np.random.Generator, cfg: SceneConfig) -> tuple[int, int]:
@@ -216,6 +235,11 @@ def random_board(rng: np.random.Generator, cfg: SceneConfig, lens: Lens) -> Boar
     margin = rng.uniform(0.3, 1.5) if rng.random() < cfg.p_margin else 0.0
     dark = rng.uniform(0.0, 0.35)
     light = rng.uniform(max(dark + 0.25, 0.55), 1.0)
+    # markers draw from a spawned generator, which leaves rng's stream as it is: the scene is the same with or without
+    if cfg.p_markers > 0 and (marker_rng := rng.spawn(1)[0]).random() < cfg.p_markers:
+        bits = marker_rng.random((rows + 1, cols + 1, 7, 7)) < 0.5
+        bits[:, :, [0, -1], :] = bits[:, :, :, [0, -1]] = True  # each marker's dark outer ring
+        return Board(cols, rows, margin, h, dark, light, bits, float(marker_rng.uniform(*cfg.marker_ratio)))
     return Board(cols, rows, margin, h, dark, light)
 
 

@@ -1,0 +1,60 @@
+"""ChArUco-style boards (ccdn.grid's module docstring, Markers): OpenCV's ArUco markers in the light squares."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+import ccdn
+from ccdn.checker import Sampler
+from ccdn.grid import _marked, find_boards
+from ccdn.lattice import distances
+
+SQUARE, MARGIN, COLS, ROWS = 60, 60, 10, 7  # squares; inner corners (COLS - 1) x (ROWS - 1)
+WARP = np.float32([[40, 30], [600, 60], [620, 450], [10, 420]])  # where the board image's corners go in a 640x480 view
+
+
+def board_view(markers: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A 10 x 7-square board, with OpenCV's 5x5 ArUco markers (3/4 of the square) in its light squares
+    or without, seen at a slant and slightly blurred (640x480), and its inner corners (x, y) there."""
+    aruco = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_100)
+    image = np.full((ROWS * SQUARE + 2 * MARGIN, COLS * SQUARE + 2 * MARGIN), 255, np.uint8)
+    side = 3 * SQUARE // 4
+    inset = (SQUARE - side) // 2
+    for k, (r, c) in enumerate(np.ndindex(ROWS, COLS)):
+        y, x = MARGIN + r * SQUARE, MARGIN + c * SQUARE
+        if (r + c) % 2 == 0:
+            image[y : y + SQUARE, x : x + SQUARE] = 0
+        elif markers:
+            image[y + inset : y + inset + side, x + inset : x + inset + side] = cv2.aruco.generateImageMarker(
+                aruco, k // 2, side)
+    cols, rows = np.meshgrid(np.arange(1, COLS), np.arange(1, ROWS))
+    corners = np.stack([MARGIN + cols * SQUARE - 0.5, MARGIN + rows * SQUARE - 0.5], -1).reshape(-1, 2)  # pixel edges
+    h, w = image.shape
+    warp = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), WARP)
+    view = cv2.warpPerspective(image, warp, (640, 480), flags=cv2.INTER_AREA, borderValue=128)
+    return cv2.GaussianBlur(view, (0, 0), 0.8), cv2.perspectiveTransform(corners[None], warp)[0].astype(np.float64)
+
+
+def test_a_charuco_board_is_found_whole_each_corner_once():
+    view, truth = board_view(markers=True)
+    result = ccdn.Detector(threads=1).detect(view)
+    assert [(b.cols, b.rows) for b in result.boards] == [(COLS - 1, ROWS - 1)]
+    assert len(result.xy) == len(truth)
+    assert distances(truth, result.xy.astype(np.float64)).min(1).max() < 0.3
+    apart = distances(result.xy, result.xy)
+    np.fill_diagonal(apart, np.inf)
+    assert apart.min() > 10  # a corner the board completed from the image is not a second board's too
+
+
+@pytest.mark.parametrize("markers", [True, False], ids=["marked", "plain"])
+def test_the_marker_search_finds_only_boards_whose_light_squares_hold_markers(markers):
+    view, truth = board_view(markers)
+    score = np.ones(len(truth))
+    plain_search = find_boards(view, truth, score, complete=True)
+    assert len(plain_search) == (0 if markers else 1)  # the markers fail every seed square's uniform quads
+    if markers:
+        boards = find_boards(view, truth, score, complete=True, markers=True)
+        assert [len(b) for b in boards] == [len(truth)]
+    assert _marked(Sampler(view), (boards if markers else plain_search)[0]) == markers
