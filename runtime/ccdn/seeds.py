@@ -37,7 +37,8 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
     one sampling serves them all (a looser count's shortest passing square is among the squares
     sampled for the strictest, which samples further only for the seeds none of whose shortest passed).
     quads: the share of the lattice steps the corners' quads are sampled at (ccdn.grid.MARKER_QUADS:
-    near the corner, inside a marked square's light border).
+    near the corner, inside a marked square's light border); below 1 without the samples along the
+    steps (SEED_AXES), which there fall on the corner's own edges.
 
     A square is p, p + u, p + v and a fourth corner near p + u + v, with u, v from the seed's
     SEED_NEIGHBOURS nearest free corners, whose four corners pass the image test; of the passing
@@ -104,21 +105,21 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
             continue
         # many squares: the seed corner alone first (passing needs its 4 quad pairs to differ one way by MIN_CONTRAST)
         su, sv = quads * uu[t], quads * vv[t]
+        axes = SEED_AXES if quads == 1 else 0.0
         if len(t) > FEW_SQUARES:
-            seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], su, sv, SEED_REACH_UNIFORM,
-                                                       SEED_AXES)
+            seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], su, sv, SEED_REACH_UNIFORM, axes)
             alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
             t, seed_diffs, seed_spread = t[alternating], seed_diffs[alternating], seed_spread[alternating]
             if len(t) == 0:
                 continue
             su, sv = su[alternating], sv[alternating]
             diffs, spread = quad_differences(sampler, xy[square[t, 1:].ravel()], np.repeat(su, 3, 0),
-                                             np.repeat(sv, 3, 0), SEED_REACH_UNIFORM, SEED_AXES)
+                                             np.repeat(sv, 3, 0), SEED_REACH_UNIFORM, axes)
             diffs = np.concatenate([seed_diffs[:, None], diffs.reshape(-1, 3, 4)], 1)
             spread = np.concatenate([seed_spread[:, None], spread.reshape(-1, 3)], 1)
         else:  # all four corners in one call (a square that fails the seed corner's test fails `even` below)
             diffs, spread = quad_differences(sampler, xy[square[t].ravel()], np.repeat(su, 4, 0),
-                                             np.repeat(sv, 4, 0), SEED_REACH_UNIFORM, SEED_AXES)
+                                             np.repeat(sv, 4, 0), SEED_REACH_UNIFORM, axes)
             diffs, spread = diffs.reshape(-1, 4, 4), spread.reshape(-1, 4)
         # corners (0, 0), (0, 1), (1, 0), (1, 1): flip the odd ones to "even-parity quads minus odd"
         diffs = (diffs * np.array([1.0, -1.0, -1.0, 1.0])[None, :, None]).reshape(len(t), 16)
