@@ -93,6 +93,7 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
     rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
     passed = np.zeros((len(uneven), len(si)), bool)
     g_sign, g_contrast = np.zeros(len(si)), np.zeros(len(si))
+    axes = SEED_AXES if quads == 1 else 0.0  # near a corner, samples along the steps fall on its own edges
     first_round = rank < 3  # the image test is the costly part: the shortest squares first ...
     for second in (False, True):  # ... the rest only for the seeds whose shortest all failed
         if second:  # the squares of seeds none of whose squares passed yet (a lookup, not np.isin's sort)
@@ -103,9 +104,8 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
             t = np.nonzero(first_round)[0]
         if len(t) == 0:  # usually the second round: every seed passed with one of its shortest
             continue
+        su, sv = quads * uu[t], quads * vv[t]  # the steps the quads are sampled with
         # many squares: the seed corner alone first (passing needs its 4 quad pairs to differ one way by MIN_CONTRAST)
-        su, sv = quads * uu[t], quads * vv[t]
-        axes = SEED_AXES if quads == 1 else 0.0
         if len(t) > FEW_SQUARES:
             seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], su, sv, SEED_REACH_UNIFORM, axes)
             alternating = (seed_diffs.min(1) > MIN_CONTRAST) | (seed_diffs.max(1) < -MIN_CONTRAST)
