@@ -13,14 +13,15 @@ from ccdn.lattice import distances
 
 SQUARE, MARGIN, COLS, ROWS = 60, 60, 10, 7  # squares; inner corners (COLS - 1) x (ROWS - 1)
 WARP = np.float32([[40, 30], [600, 60], [620, 450], [10, 420]])  # where the board image's corners go in a 640x480 view
+CLOSE = np.float32([[-60, -60], [700, -40], [690, 520], [-50, 500]])  # ... or so close that its outer squares are cut
 
 
-def board_view(markers: bool) -> tuple[np.ndarray, np.ndarray]:
-    """A 10 x 7-square board, with OpenCV's 5x5 ArUco markers (3/4 of the square) in its light squares
-    or without, seen at a slant and slightly blurred (640x480), and its inner corners (x, y) there."""
+def board_view(markers: bool, ratio: float = 0.75, warp_to: np.ndarray = WARP) -> tuple[np.ndarray, np.ndarray]:
+    """A 10 x 7-square board, with OpenCV's 5x5 ArUco markers (`ratio` of the square) in its light
+    squares or without, seen at a slant and slightly blurred (640x480), and its inner corners (x, y) there."""
     aruco = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_100)
     image = np.full((ROWS * SQUARE + 2 * MARGIN, COLS * SQUARE + 2 * MARGIN), 255, np.uint8)
-    side = 3 * SQUARE // 4
+    side = int(ratio * SQUARE)
     inset = (SQUARE - side) // 2
     for k, (r, c) in enumerate(np.ndindex(ROWS, COLS)):
         y, x = MARGIN + r * SQUARE, MARGIN + c * SQUARE
@@ -32,9 +33,10 @@ def board_view(markers: bool) -> tuple[np.ndarray, np.ndarray]:
     cols, rows = np.meshgrid(np.arange(1, COLS), np.arange(1, ROWS))
     corners = np.stack([MARGIN + cols * SQUARE - 0.5, MARGIN + rows * SQUARE - 0.5], -1).reshape(-1, 2)  # pixel edges
     h, w = image.shape
-    warp = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), WARP)
+    warp = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), warp_to)
     view = cv2.warpPerspective(image, warp, (640, 480), flags=cv2.INTER_AREA, borderValue=128)
-    return cv2.GaussianBlur(view, (0, 0), 0.8), cv2.perspectiveTransform(corners[None], warp)[0].astype(np.float64)
+    truth = cv2.perspectiveTransform(corners[None], warp)[0].astype(np.float64)
+    return cv2.GaussianBlur(view, (0, 0), 0.8), truth[((truth > 2) & (truth < [637, 477])).all(1)]
 
 
 def test_a_charuco_board_is_found_whole_each_corner_once():
@@ -58,3 +60,12 @@ def test_the_marker_search_finds_only_boards_whose_light_squares_hold_markers(ma
         boards = find_boards(view, truth, score, complete=True, markers=True)
         assert [len(b) for b in boards] == [len(truth)]
     assert _marked(Sampler(view), (boards if markers else plain_search)[0]) == markers
+
+
+def test_markers_of_four_fifths_of_large_squares_leave_a_border_wide_enough():
+    """Squares of ~75 px with markers of 0.8 of them: a light border of ~7 px, which a fixed share of
+    0.15 of the steps overshoots with its sample boxes (seeds.NearQuads keeps the samples ~3 px in)."""
+    view, truth = board_view(markers=True, ratio=0.8, warp_to=CLOSE)
+    result = ccdn.Detector(threads=1).detect(view)
+    assert len(result.boards) == 1 and len(result.xy) == len(truth) == (COLS - 1) * (ROWS - 1)
+    assert distances(truth, result.xy.astype(np.float64)).min(1).max() < 0.3

@@ -49,16 +49,17 @@ frame a quarter more time; now 4-14 %, and nothing where a board is found).
 Markers (the detector's full-frame pass): a ChArUco-style board holds a marker in each light
 square, 0.6-0.8 of its side, whose bits make those quads anything but uniform, so no seed square
 passes and the board is lost although the network finds its corners. Where the search (and the
-levelled one) finds no board, it runs once more with the seed squares' quads sampled MARKER_QUADS
-of the lattice steps from their corners, inside the markers' light border, where every quad is
-uniform again (without the samples along the steps, which there fall on the corner's own edges),
+levelled one) finds no board, it runs once more with the seed squares' quads sampled near their
+corners (MARKER_QUADS), inside the markers' light border, where every quad is uniform again
+(without the samples along the steps, which there fall on the corner's own edges),
 and with the corner-like seeds only (the plain ones found no more on marked boards and cost a
 boardless 2000x1500 frame 20 ms). Growth's own image test passes such corners as they are. A
 board so found is kept only where its light quads do hold markers (_marked: their samples range
 much more than its dark quads'); a plain board it finds (e.g. one whose seed squares an occluder
 spoils) took outline points with it. Only frames where nothing else is found can change (stress
 renders with markers, ccdn_training.synth's p_markers: 86 -> 29 % missed, held out 74-77 -> 10-12 %;
-OpenCV's ChArUco images: 21 -> 34 of 54 boards; every frame with a board found before the same).
+OpenCV's ChArUco images: 21 -> 34 of 54 boards at 640x480, 3 -> 9 of 9 at 2000x1500; every frame
+with a board found before the same).
 
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
@@ -88,7 +89,7 @@ from .checker import Sampler, quad_levels, x_like
 from .edges import lattice_steps, median_step
 from .growth import Grower
 from .lattice import SEED_AXES, SEED_REACH_UNIFORM, distances, held_on_two_sides, inside_margin
-from .seeds import SEED_CHUNK, SEED_REACH, seed_squares
+from .seeds import SEED_CHUNK, SEED_REACH, NearQuads, seed_squares
 from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from .stats import median, vector_lengths
 
@@ -97,7 +98,9 @@ MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board b
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 BEHIND_UNEVEN = 2  # corners of a seed square with non-uniform quads in the last round (module docstring)
 SAME_CORNER_PX = 1.0  # a free corner this close to one a board completed from the image is that corner
-MARKER_QUADS = 0.15  # share of the lattice steps where the search for a marked board samples seed squares' quads
+MARKER_QUADS = NearQuads(3.0, 0.1, 0.15)  # where the search for a marked board samples seed squares' quads: ~3 px
+# from the corner along each step, 0.1-0.15 of the steps (squares over 40 px: 0.15 reached the markers of 0.8 of the
+# square on 145 px squares; under 40 px: nearer than 0.15 the squares' edges blur the samples)
 MARKED = 0.5  # a board found so holds markers where its light quads' samples range this much more than its dark ones'
 # (of their contrast; _marked)
 SAMPLED_REACH = 4.0  # x the corners' median gap: how far around them find_boards' Sampler integrates the image
@@ -173,7 +176,7 @@ def indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Boar
 
 def _sampled_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
                      sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]], levels: tuple[int, ...],
-                     quads: float) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
+                     near: NearQuads | None) -> tuple[tuple[np.ndarray, ...], dict[int, int]]:
     """A later round's squares (levels[0] uneven corners) of the free `seeds` and each seed's row in
     them: those the earlier rounds sampled since the last board was grown (sampled[levels[0]]:
     (seeds, their squares)) as they are, the others sampled now, at all the `levels` still to come
@@ -184,7 +187,7 @@ def _sampled_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighb
         known[ahead] = True
     if not known[seeds].all():
         stale = seeds[~known[seeds]]
-        fresh.append((stale, _sample_ahead(xy, sampler, stale, neighbours, free, sampled, levels, quads)))
+        fresh.append((stale, _sample_ahead(xy, sampler, stale, neighbours, free, sampled, levels, near)))
     ahead = np.concatenate([a for a, _ in fresh])
     squares = tuple(np.concatenate(parts) for parts in zip(*(q for _, q in fresh)))
     return squares, dict(zip(ahead.tolist(), range(len(ahead))))  # a seed sampled twice: its last row
@@ -192,11 +195,11 @@ def _sampled_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighb
 
 def _sample_ahead(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray,
                   sampled: dict[int, list[tuple[np.ndarray, tuple[np.ndarray, ...]]]], levels: tuple[int, ...],
-                  quads: float) -> tuple[np.ndarray, ...]:
-    """The squares of `seeds` at levels[0] uneven corners (seed_squares, their quads sampled at `quads`
-    of the steps); their squares at the further `levels`, from the same sampling, go to `sampled` for
-    the rounds to come."""
-    now, *later = seed_squares(xy, sampler, seeds, neighbours[seeds], free, levels, quads)
+                  near: NearQuads | None) -> tuple[np.ndarray, ...]:
+    """The squares of `seeds` at levels[0] uneven corners (seed_squares, their quads sampled `near`
+    their corners where given); their squares at the further `levels`, from the same sampling, go to
+    `sampled` for the rounds to come."""
+    now, *later = seed_squares(xy, sampler, seeds, neighbours[seeds], free, levels, near)
     for level, squares in zip(levels[1:], later):
         sampled[level].append((seeds, squares))
     return now
@@ -402,11 +405,12 @@ def _unlit_square(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray) -> tuple[f
 
 def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarray, neighbours: np.ndarray,
             gaps: np.ndarray, board_size: tuple[int, int] | None, allow_partial: bool, complete: bool,
-            uneven_seeds: int, quads: float = 1.0, plain_seeds: int = MAX_PLAIN_SEEDS) -> tuple[Board, ...]:
+            uneven_seeds: int, near: NearQuads | None = None, plain_seeds: int = MAX_PLAIN_SEEDS
+            ) -> tuple[Board, ...]:
     """find_boards' search on `gray` (sampled by `sampler`) for corners xy with their nearest
-    neighbours (nearest_neighbours) and gaps (distance to the nearest); quads: where seed squares'
-    quads are sampled, as a share of the lattice steps (seed_squares); plain_seeds: how many seeds
-    to try among the corners that fail the ring test (module docstring)."""
+    neighbours (nearest_neighbours) and gaps (distance to the nearest); near: seed squares' quads
+    sampled near their corners (seed_squares); plain_seeds: how many seeds to try among the corners
+    that fail the ring test (module docstring)."""
     n = len(xy)
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     corner_like = x_like(gray, xy, gaps)[order]
@@ -431,19 +435,19 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
         if uneven != 0 and free[seeds].any():  # the earlier rounds sampled this round's squares too, since the
             # last board grew
             squares, batch = _sampled_squares(xy, sampler, seeds[free[seeds]], neighbours, free, sampled,
-                                              levels[round_index:], quads)
+                                              levels[round_index:], near)
         for k, s in enumerate(seeds.tolist()):
             if not free[s]:
                 continue
             if s not in batch:
                 ahead = seeds[k:][free[seeds[k:]]][:size]
                 size = min(4 * size, SEED_CHUNK)  # the first seed usually finds the board
-                squares = _sample_ahead(xy, sampler, ahead, neighbours, free, sampled, levels[round_index:], quads)
+                squares = _sample_ahead(xy, sampler, ahead, neighbours, free, sampled, levels[round_index:], near)
                 batch = dict(zip(ahead.tolist(), range(len(ahead))))
             square = [part[batch[s]] for part in squares]
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
-                                                            (uneven,), quads)[0]]
+                                                            (uneven,), near)[0]]
             grower = (_grow_board(xy, free, sampler, gray if complete else None, added, square, gaps, score)
                       if square[0] else None)
             if grower is None:

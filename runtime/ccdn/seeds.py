@@ -5,10 +5,11 @@ seeds at once (ccdn.grid's module docstring says how seeds are chosen and tried)
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
-from .checker import MIN_CONTRAST, Sampler, quad_differences
+from .checker import MIN_CONTRAST, Sampler, altitude, quad_differences
 from .lattice import SEED_AXES, SEED_REACH_UNIFORM, TOLERANCE, unsheared
 from .stats import median, vector_lengths
 
@@ -18,6 +19,15 @@ SEED_CHUNK = 256  # seeds checked at once
 FEW_SQUARES = 3  # seed squares up to this many (one seed's first round) are sampled at all 4 corners in one call:
 # a call costs as much as 20-50 corners, while the seed corner alone fails ~4 in 5 of many seeds' squares (clutter)
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
+
+
+class NearQuads(NamedTuple):
+    """Seed squares' quads sampled near their corners (ccdn.grid, Markers): about `inset` px from the
+    corner along each step, i.e. 2 inset / the square's height of the steps, kept within low..high."""
+
+    inset: float
+    low: float
+    high: float
 
 
 @lru_cache(maxsize=4)
@@ -30,15 +40,16 @@ def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours: np.ndarray,
-                  free: np.ndarray, uneven: tuple[int, ...] = (0,), quads: float = 1.0) -> list[tuple[np.ndarray, ...]]:
+                  free: np.ndarray, uneven: tuple[int, ...] = (0,), near: NearQuads | None = None
+                  ) -> list[tuple[np.ndarray, ...]]:
     """A verified square at each seed corner, all seeds at once (neighbours (S, K): each seed's
     nearest corners, nearest first; only free ones count), for each count in `uneven` of a square's
     corners that may have non-uniform quads (0, 1 or BEHIND_UNEVEN, strictest first; find_boards):
     one sampling serves them all (a looser count's shortest passing square is among the squares
     sampled for the strictest, which samples further only for the seeds none of whose shortest passed).
-    quads: the share of the lattice steps the corners' quads are sampled at (ccdn.grid.MARKER_QUADS:
-    near the corner, inside a marked square's light border); below 1 without the samples along the
-    steps (SEED_AXES), which there fall on the corner's own edges.
+    near: the corners' quads sampled near them (NearQuads; ccdn.grid.MARKER_QUADS: inside a marked
+    square's light border), and without the samples along the steps (SEED_AXES), which there fall
+    on the corner's own edges.
 
     A square is p, p + u, p + v and a fourth corner near p + u + v, with u, v from the seed's
     SEED_NEIGHBOURS nearest free corners, whose four corners pass the image test; of the passing
@@ -48,7 +59,7 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
     """
     if len(seeds) > SEED_CHUNK:  # bounds the (seeds x pairs x neighbours) arrays
         parts = [seed_squares(xy, sampler, seeds[k : k + SEED_CHUNK], neighbours[k : k + SEED_CHUNK], free, uneven,
-                              quads)
+                              near)
                  for k in range(0, len(seeds), SEED_CHUNK)]
         return [tuple(np.concatenate(arrays) for arrays in zip(*level)) for level in zip(*parts)]
     n_seeds = len(seeds)
@@ -93,7 +104,7 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
     rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
     passed = np.zeros((len(uneven), len(si)), bool)
     g_sign, g_contrast = np.zeros(len(si)), np.zeros(len(si))
-    axes = SEED_AXES if quads == 1 else 0.0  # near a corner, samples along the steps fall on its own edges
+    axes = SEED_AXES if near is None else 0.0  # near a corner, samples along the steps fall on its own edges
     first_round = rank < 3  # the image test is the costly part: the shortest squares first ...
     for second in (False, True):  # ... the rest only for the seeds whose shortest all failed
         if second:  # the squares of seeds none of whose squares passed yet (a lookup, not np.isin's sort)
@@ -104,7 +115,10 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
             t = np.nonzero(first_round)[0]
         if len(t) == 0:  # usually the second round: every seed passed with one of its shortest
             continue
-        su, sv = quads * uu[t], quads * vv[t]  # the steps the quads are sampled with
+        su, sv = uu[t], vv[t]  # the steps the quads are sampled with
+        if near is not None:
+            share = np.clip(2 * near.inset / np.maximum(altitude(su, sv), 1e-9), near.low, near.high)[:, None]
+            su, sv = share * su, share * sv
         # many squares: the seed corner alone first (passing needs its 4 quad pairs to differ one way by MIN_CONTRAST)
         if len(t) > FEW_SQUARES:
             seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], su, sv, SEED_REACH_UNIFORM, axes)
