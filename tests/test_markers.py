@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -16,9 +18,9 @@ WARP = np.float32([[40, 30], [600, 60], [620, 450], [10, 420]])  # where the boa
 CLOSE = np.float32([[-60, -60], [700, -40], [690, 520], [-50, 500]])  # ... or so close that its outer squares are cut
 
 
-def board_view(markers: bool, ratio: float = 0.75, warp_to: np.ndarray = WARP) -> tuple[np.ndarray, np.ndarray]:
-    """A 10 x 7-square board, with OpenCV's 5x5 ArUco markers (`ratio` of the square) in its light
-    squares or without, seen at a slant and slightly blurred (640x480), and its inner corners (x, y) there."""
+def board_image(markers: bool, ratio: float = 0.75) -> tuple[np.ndarray, np.ndarray]:
+    """A 10 x 7-square board of SQUARE px squares, with OpenCV's 5x5 ArUco markers (`ratio` of the
+    square) in its light squares or without, and its inner corners (x, y) on it."""
     aruco = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_100)
     image = np.full((ROWS * SQUARE + 2 * MARGIN, COLS * SQUARE + 2 * MARGIN), 255, np.uint8)
     side = int(ratio * SQUARE)
@@ -31,7 +33,12 @@ def board_view(markers: bool, ratio: float = 0.75, warp_to: np.ndarray = WARP) -
             image[y + inset : y + inset + side, x + inset : x + inset + side] = cv2.aruco.generateImageMarker(
                 aruco, k // 2, side)
     cols, rows = np.meshgrid(np.arange(1, COLS), np.arange(1, ROWS))
-    corners = np.stack([MARGIN + cols * SQUARE - 0.5, MARGIN + rows * SQUARE - 0.5], -1).reshape(-1, 2)  # pixel edges
+    return image, np.stack([MARGIN + cols * SQUARE - 0.5, MARGIN + rows * SQUARE - 0.5], -1).reshape(-1, 2)  # pixel edges
+
+
+def board_view(markers: bool, ratio: float = 0.75, warp_to: np.ndarray = WARP) -> tuple[np.ndarray, np.ndarray]:
+    """board_image seen at a slant and slightly blurred (640x480), and its inner corners (x, y) there."""
+    image, corners = board_image(markers, ratio)
     h, w = image.shape
     warp = cv2.getPerspectiveTransform(np.float32([[0, 0], [w, 0], [w, h], [0, h]]), warp_to)
     view = cv2.warpPerspective(image, warp, (640, 480), flags=cv2.INTER_AREA, borderValue=128)
@@ -69,3 +76,26 @@ def test_markers_of_four_fifths_of_large_squares_leave_a_border_wide_enough():
     result = ccdn.Detector(threads=1).detect(view)
     assert len(result.boards) == 1 and len(result.xy) == len(truth) == (COLS - 1) * (ROWS - 1)
     assert distances(truth, result.xy.astype(np.float64)).min(1).max() < 0.3
+
+
+def test_calibrate_command_recovers_a_camera_from_charuco_views(tmp_path):
+    """`ccdn calibrate` on ChArUco views of a known pinhole camera: its own board search (of the given
+    size, on the detector's corners) looks for marked boards too."""
+    from ccdn.cli import main
+
+    k = np.array([[600.0, 0, 322.0], [0, 600.0, 236.0], [0, 0, 1]])
+    image, _ = board_image(markers=True)
+    h, w = image.shape
+    centred = np.array([[1 / SQUARE, 0, -w / 2 / SQUARE], [0, 1 / SQUARE, -h / 2 / SQUARE], [0, 0, 1]])  # px -> squares
+    rng = np.random.default_rng(3)
+    (tmp_path / "in").mkdir()
+    for i in range(6):
+        rotation, _ = cv2.Rodrigues(np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-0.3, 0.3)]))
+        pose = np.column_stack([rotation[:, 0], rotation[:, 1], [rng.uniform(-1, 1), rng.uniform(-1, 1), 15.0]])
+        view = cv2.warpPerspective(image, k @ pose @ centred, (640, 480), flags=cv2.INTER_AREA, borderValue=128)
+        cv2.imwrite(str(tmp_path / "in" / f"view{i}.png"), cv2.GaussianBlur(view, (0, 0), 0.8))
+    assert main(["calibrate", str(tmp_path / "in"), "--board", f"{COLS - 1}x{ROWS - 1}", "--square", "1", "--out",
+                 str(tmp_path / "out"), "--threads", "2", "--quiet"]) == 0
+    found = np.array(json.loads((tmp_path / "out" / "calibration.json").read_text())["camera_matrix"])
+    assert found[0, 0] == pytest.approx(600, rel=0.02) and found[1, 1] == pytest.approx(600, rel=0.02)
+    assert abs(found[0, 2] - 322) < 8 and abs(found[1, 2] - 236) < 8

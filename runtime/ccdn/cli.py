@@ -173,7 +173,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:  # ImageError is a ValueError
             reasons.append(str(exc))
             continue
-        boards = find_boards(gray, result.xy, result.score, args.board, allow_partial=args.partial)
+        boards = find_boards(gray, result.xy, result.score, args.board, allow_partial=args.partial,
+                             markers=True)  # the detector's corners of a ChArUco-style board: their search too
         sizes.add(result.image_size)
         paths[item.name] = item.path
         if boards:
