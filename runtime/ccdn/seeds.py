@@ -117,7 +117,7 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
             continue
         su, sv = uu[t], vv[t]  # the steps the quads are sampled with
         if near is not None:
-            share = np.clip(2 * near.inset / np.maximum(altitude(su, sv), 1e-9), near.low, near.high)[:, None]
+            share = np.clip(2 * near.inset / altitude(su, sv), near.low, near.high)[:, None]  # heights >= MIN_SQUARE_PX
             su, sv = share * su, share * sv
         # many squares: the seed corner alone first (passing needs its 4 quad pairs to differ one way by MIN_CONTRAST)
         if len(t) > FEW_SQUARES:
