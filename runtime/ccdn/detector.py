@@ -212,7 +212,8 @@ class Detector:
         # more numerous with the fast model, pull the median below the board's squares
         if len(xy) < 9 or quantile(gaps, 0.75) < COARSE_MIN_SQUARE:
             return None, None, None, score
-        xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock)
+        xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock,
+                                          markers=True)
         if len(xy) < 9 or (not any_squares and _too_small(xy, found, scale)):
             return None, None, None, score
         if not self.fast_check and self._saddle_boards:
@@ -235,10 +236,11 @@ class Detector:
 
     def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, score: np.ndarray, xy: np.ndarray,
                  values: np.ndarray, gaps: np.ndarray, boards: bool, board_size, clock: _Clock,
-                 shade_unfound: bool = False):
+                 shade_unfound: bool = False, markers: bool = False):
         """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `gaps`: theirs, in
         frame pixels) refined on gray, then the boards they form (shade_unfound: ccdn.grid.find_boards';
-        the full frame's pass asks for it: where it finds no board, no finer pass follows)."""
+        the full frame's pass asks for it: where it finds no board, no finer pass follows; markers:
+        find_boards', which the shrunk and the full frame's passes ask for, the looks not)."""
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
         radius = window_for_spacing(median(gaps) * scale)
         if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
@@ -254,7 +256,7 @@ class Detector:
             complete = self.filter == "grid"
             found = settled(find_boards(gray, refined, values, board_size, complete=complete,
                                         uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0,
-                                        shade_unfound=shade_unfound, markers=shade_unfound), gray.shape)
+                                        shade_unfound=shade_unfound, markers=markers), gray.shape)
             if complete:
                 refined, values = _with_completed(refined, values, found, score, scale)
             if complete or board_size is not None:
@@ -306,7 +308,7 @@ class Detector:
         magnified look at its thin boards: (xy, values, boards, its score peaks)."""
         score, peaks, values, gaps = self._peaks(self._session, gray, clock, boxes)
         xy, values, found = self._corners(gray, gray, 1, score, peaks, values, gaps, boards, board_size, clock,
-                                          shade_unfound=True)
+                                          shade_unfound=True, markers=True)
         if self._saddle_boards:
             xy, values, found = self._magnified(gray, thin_region(found, gray.shape), xy, values, found, boards,
                                                 board_size, clock)

@@ -46,7 +46,7 @@ square's corners (1300 cached stress renders: 3 such boards of 12-20 corners, 48
 false positive more; asked on every pass where no board was found before, it cost a boardless
 frame a quarter more time; now 4-14 %, and nothing where a board is found).
 
-Markers (the detector's full-frame pass): a ChArUco-style board holds a marker in each light
+Markers (the detector's shrunk and full-frame passes): a ChArUco-style board holds a marker in each light
 square, 0.6-0.8 of its side, whose bits make those quads anything but uniform, so no seed square
 passes and the board is lost although the network finds its corners. Where the search (and the
 levelled one) finds no board, it runs once more with the seed squares' quads sampled near their
