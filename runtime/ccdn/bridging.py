@@ -19,7 +19,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .lattice import looks_flat, project_with_steps, shorter_length
+from .lattice import first_of_each_cell, looks_flat, project_with_steps, shorter_length
 from .stats import vector_lengths
 
 BRIDGE_REACH = 0.15  # x the shorter projected step: how far a corner beyond a gap may lie from its lattice position
@@ -29,7 +29,7 @@ _DIAGONALS = np.array([[1.0, 1.0], [1.0, -1.0]])  # (col, row) -> (col + row, co
 
 
 class Bridging:
-    """Grower's step across a gap: a mixin that uses its canvas (idx, pos, origin), free corners and
+    """Grower's step across a gap: a mixin that uses its canvas (idx, origin, _filled), free corners and
     image test (_accepts, _crowded)."""
 
     def bridge(self) -> bool:
@@ -37,9 +37,7 @@ class Bridging:
         free = np.nonzero(self.free)[0]
         if len(free) < BRIDGE_PIECE:
             return False
-        filled = np.argwhere(self.idx >= 0)
-        grid = (filled - self.origin)[:, ::-1].astype(np.float64)  # (col, row), like (x, y)
-        points = self.pos[filled[:, 0], filled[:, 1]]
+        _, grid, points = self._filled()  # (col, row), like (x, y)
         # the homography through the board's 4 outermost corners (a least-squares fit cost 0.3 ms a frame),
         # checked for flatness only where a piece is found
         diagonals = grid @ _DIAGONALS  # (K, 2): col + row, col - row
@@ -68,7 +66,7 @@ class Bridging:
         apart[inside] = touching[rc[inside, 0], rc[inside, 1]] == 0
         keep = np.nonzero(apart)[0]
         keep = keep[np.argsort(dist[keep], kind="stable")]
-        keep = keep[np.unique(rc[keep, 0] * (1 << 20) + rc[keep, 1], return_index=True)[1]]  # one corner a cell
+        keep = keep[first_of_each_cell(rc[keep])]  # one corner a cell
         if len(_in_pieces(cells[keep], BRIDGE_PIECE, keep)) == 0 or not looks_flat(homography, grid, points):
             return False
         keep = keep[self._accepts(rc[keep], self.xy[free[keep]], u[keep], v[keep],

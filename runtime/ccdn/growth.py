@@ -70,9 +70,9 @@ from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differen
 from .bridging import Bridging
 from .cleanup import Cleanup
 from .completion import SHADED_CONTRAST, Completion
-from .lattice import (SEED_AXES, SEED_REACH_UNIFORM, SHADE_OFFSET, TOLERANCE, bends, distances, looks_flat,
-                      held_on_two_sides, project_with_steps, quad_contrast, row_col_neighbours, shorter_length,
-                      square_enough)
+from .lattice import (SEED_AXES, SEED_REACH_UNIFORM, SHADE_OFFSET, TOLERANCE, bends, distances, first_of_each_cell,
+                      held_on_two_sides, looks_flat, project_with_steps, quad_contrast, row_col_neighbours,
+                      shorter_length, square_enough)
 from .stats import median, nanmedian_rows
 
 SLIVER_REACH = 1.5  # growth's tolerance is TOLERANCE (ccdn.lattice) of the shorter local step, or of this x the
@@ -363,9 +363,7 @@ class Grower(Completion, Cleanup, Bridging):
             if len(free) == 0:
                 return
             taken = self.idx >= 0
-            filled = np.argwhere(taken)
-            grid = (filled - self.origin)[:, ::-1].astype(np.float64)  # (col, row), like (x, y)
-            points = self.pos[filled[:, 0], filled[:, 1]]
+            filled, grid, points = self._filled()
             homography, _ = cv2.findHomography(grid, points, 0)
             if homography is None or abs(np.linalg.det(homography)) < 1e-12 or not looks_flat(homography, grid, points):
                 return
@@ -483,7 +481,7 @@ class Grower(Completion, Cleanup, Bridging):
             tols.append(tol[ok])
             steps.append(uv[ok])
         targets, preds, tols, steps = (np.concatenate(part) for part in (targets, preds, tols, steps))
-        first = np.sort(_first_of_each_cell(targets, self.idx.shape[1]))
+        first = np.sort(first_of_each_cell(targets))
         return targets[first], (preds[first], tols[first], steps[first, :2], steps[first, 2:])
 
     def _checkered(self, cells: np.ndarray, support: tuple[np.ndarray, ...]):
@@ -499,6 +497,12 @@ class Grower(Completion, Cleanup, Bridging):
         """(K,) the board's sign at canvas cells: + where the corner's own-parity quads are light."""
         return np.where(((cells - self.origin).sum(1) % 2) == 0, self.sign, -self.sign)
 
+    def _filled(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The filled canvas cells (K, 2) (row, col), their lattice coordinates from the seed (K, 2)
+        float (col, row), like (x, y): what a homography maps, and their positions (K, 2)."""
+        filled = np.argwhere(self.idx >= 0)
+        return filled, (filled - self.origin)[:, ::-1].astype(np.float64), self.pos[filled[:, 0], filled[:, 1]]
+
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
         """The board so far: grid positions (M, 2) (row, col) and corner indices (M,)."""
         rc = np.argwhere(self.idx >= 0)
@@ -511,9 +515,3 @@ def _nearest_cell_wins(ok: np.ndarray, dist: np.ndarray, corner: np.ndarray) -> 
     ok = ok[np.argsort(dist[ok], kind="stable")]
     return ok[np.unique(corner[ok], return_index=True)[1]]
 
-
-def _first_of_each_cell(cells: np.ndarray, width: int) -> np.ndarray:
-    """Indices of the first occurrence of each distinct canvas cell in cells (K, 2) (row, col < width),
-    in (row, col) order: np.unique(axis=0, return_index=True) on one integer key per cell, without
-    its slow row-wise path."""
-    return np.unique(cells[:, 0] * width + cells[:, 1], return_index=True)[1]

@@ -51,6 +51,16 @@ def looks_flat(homography: np.ndarray, grid: np.ndarray, points: np.ndarray) -> 
     return not (vector_lengths(fitted - points) > FLAT_RESIDUAL * shorter_length(u, v)).any()
 
 
+def first_of_each_cell(cells: np.ndarray) -> np.ndarray:
+    """Indices of the first occurrence of each distinct grid cell in cells (K, 2) int (row, col), in
+    (row, col) order: np.unique(axis=0, return_index=True) on one integer key per cell, without its
+    slow row-wise path (any cells: negative ones, or off a canvas, too)."""
+    if len(cells) == 0:
+        return np.zeros(0, np.int64)
+    shifted = cells - cells.min(0)
+    return np.unique(shifted[:, 0] * (shifted[:, 1].max() + 1) + shifted[:, 1], return_index=True)[1]
+
+
 def distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(K, M) distances between points a (K, 2) and b (M, 2): np.linalg.norm(a[:, None] - b[None], axis=2)
     to the last bit, an order of magnitude faster (its sum over an axis of length 2 is slow)."""
