@@ -397,6 +397,18 @@ def test_a_board_is_not_grown_into_cells_flatter_than_a_seed_square():
     assert (nearest_distances(board.corners, found) < 1.5).all()
 
 
+def test_a_lattice_of_squares_under_five_px_both_ways_is_no_board():
+    """Where the lines of a double-lined grid cross, their crossings and the cells between them form
+    a lattice of ~4 px steps that passes every test a corner gets (the stress set's extreme-pose
+    render 7100506: a false board of 14 corners beside the true one). A board whose squares are under
+    ccdn.detector.MIN_BOARD_SQUARE px both ways, smaller than any the networks were trained on, is
+    dropped; the steep board of the same frame, its squares ~4 px across but longer along, stays."""
+    scene = stress_scene("extreme-pose", 7_100_506)
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert (nearest_distances(scene.corners, result.xy) < 1.5).all()  # every corner found is a true one
+    assert [len(board) for board in result.boards] == [len(scene.corners)]
+
+
 def test_corners_under_a_shadows_edge_are_completed():
     """Where a blurred shadow's edge crosses a board, the light falls across a corner's quads: at
     their centres, half a square away, a lit dark square can outshine a shaded light one, and

@@ -81,6 +81,10 @@ FULL_FRAME_UNEVEN_SEEDS = 1  # on the full frame a seed square may have a corner
 # crosses (ccdn.grid); not on shrunk passes, where finding a hard board would stop the finer passes
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
 PAPER_THRESHOLD = (0.5, 0.3)  # the paper's half of the maximum (and a floor), for the other filters
+MIN_BOARD_SQUARE = 5.0  # px: a board whose squares' longer side (median over its corners) is shorter is dropped
+# (_without_tiny_boards): smaller than any square the networks were trained on (6 px) or the benchmarks hold, and
+# where lines cross clutter holds such lattices (a double-lined grid: a false board of 14 corners, ~4 px steps,
+# in a fresh extreme-pose render); the smallest true board on ~1800 cached frames measured 5.7 px
 
 
 class Detector:
@@ -188,6 +192,7 @@ class Detector:
             xy, values, found, peaks = self._full_frame(gray, boxes, boards, board_size, clock)
             if self._saddle_boards:
                 xy, values, found = self._loose_looks(gray, xy, values, found, peaks, boards, board_size, clock)
+                xy, values, found = _without_tiny_boards(xy, values, found)
         lights = None
         if self._saddle_boards and not self.fast_check:
             xy, values, found, lights = self._grown_into_shade(gray, xy, values, found, board_size, clock)
@@ -414,6 +419,15 @@ def _keep_board_corners(xy: np.ndarray, values: np.ndarray, boards: tuple[Board,
     new_index[keep] = np.arange(len(keep))
     boards = tuple(dataclasses.replace(b, corner_index=new_index[b.corner_index]) for b in boards)
     return xy[keep], values[keep], boards
+
+
+def _without_tiny_boards(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):
+    """xy, values and boards without the boards whose squares are under MIN_BOARD_SQUARE px along both
+    axes (the median over the corners of the longer of their two lattice steps), nor their corners."""
+    steps = [lattice_steps(board)[:, [0, 2]] for board in boards]
+    kept = tuple(board for board, step in zip(boards, steps)
+                 if not np.nanmedian(np.fmax.reduce(np.hypot(step[..., 0], step[..., 1]), 1)) < MIN_BOARD_SQUARE)
+    return (xy, values, boards) if len(kept) == len(boards) else _keep_board_corners(xy, values, kept)
 
 
 def _too_small(xy: np.ndarray, boards: tuple[Board, ...], scale: int) -> bool:
