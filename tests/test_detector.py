@@ -409,6 +409,20 @@ def test_a_lattice_of_squares_under_five_px_both_ways_is_no_board():
     assert [len(board) for board in result.boards] == [len(scene.corners)]
 
 
+def test_a_close_up_whose_squares_change_size_from_one_to_the_next_is_found():
+    """A close-up (the stress set's close-up render 7180018: 13 corners of 100-200 px squares, running
+    off the frame): perspective changes the squares' size from one to the next, and the seed squares'
+    quads, sampled widely with one square's steps, cross into other squares, so the plain search finds
+    no board. The search sampling quads near their corners (the marker search) finds it, and a plain
+    board it finds is kept where its squares span over ccdn.grid.CLOSE_UP of the frame's shorter side."""
+    scene = stress_scene("close-up", 7_180_018)
+    truth = scene.corners.astype(np.float64)
+    assert ccdn.grid.find_boards(scene.image, truth, np.ones(len(truth)), complete=True) == ()
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert [len(board) for board in result.boards] == [len(truth)]
+    assert (nearest_distances(result.xy, truth) < 0.3).all()
+
+
 def test_corners_under_a_shadows_edge_are_completed():
     """Where a blurred shadow's edge crosses a board, the light falls across a corner's quads: at
     their centres, half a square away, a lit dark square can outshine a shaded light one, and

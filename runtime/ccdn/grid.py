@@ -59,7 +59,11 @@ much more than its dark quads'); a plain board it finds (e.g. one whose seed squ
 spoils) took outline points with it. Only frames where nothing else is found can change (stress
 renders with markers, ccdn_training.synth's p_markers: 86 -> 29 % missed, held out 74-77 -> 10-12 %;
 OpenCV's ChArUco images: 21 -> 34 of 54 boards at 640x480, 3 -> 9 of 9 at 2000x1500; every frame
-with a board found before the same).
+with a board found before the same). The same search finds close-ups: a few squares filling the
+frame, whose size perspective changes from one square to the next, so that the plain search's quads,
+sampled widely with one square's steps, cross into other squares; a plain board it finds is kept
+where its squares span over CLOSE_UP of the frame's shorter side (_close_up; stress close-up renders,
+squares of 100-200 px at 640x480: 12.4 -> 1.9 % missed, no false positive; every other render the same).
 
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
@@ -101,6 +105,11 @@ SAME_CORNER_PX = 1.0  # a free corner this close to one a board completed from t
 MARKER_QUADS = NearQuads(3.0, 0.1, 0.15)  # where the search for a marked board samples seed squares' quads: ~3 px
 # from the corner along each step, 0.1-0.15 of the steps (squares over 40 px: 0.15 reached the markers of 0.8 of the
 # square on 145 px squares; under 40 px: nearer than 0.15 the squares' edges blur the samples)
+CLOSE_UP = 0.15  # of the frame's shorter side: a plain board the marker search finds is kept where its squares are
+# larger (_close_up). Boards of 88-192 px squares at 640x480, 8-13 corners in view, their perspective changing the
+# squares' size from one to the next (renders with squares of 100-200 px): the seed squares' wide samples crossed
+# into other squares; the plain boards that search found in ~3000 stress renders had squares of 15-55 px, and
+# there (7141597) took 2 false outline points
 MARKED = 0.5  # a board found so holds markers where its light quads' samples range this much more than its dark ones'
 # (of their contrast; _marked)
 SAMPLED_REACH = 4.0  # x the corners' median gap: how far around them find_boards' Sampler integrates the image
@@ -356,11 +365,17 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
                         uneven_seeds)
         if sum(map(len, again)) > sum(map(len, boards)):
             boards = again
-    if markers and not boards:  # a ChArUco-style board (module docstring, Markers)
+    if markers and not boards:  # a ChArUco-style board or a close-up (module docstring, Markers)
         found = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete, uneven_seeds,
                         MARKER_QUADS, plain_seeds=0)
-        boards = tuple(board for board in found if _marked(sampler, board))
+        boards = tuple(board for board in found if _marked(sampler, board) or _close_up(board, gray.shape))
     return boards
+
+
+def _close_up(board: Board, shape: tuple[int, ...]) -> bool:
+    """Whether a board's squares (its median lattice step) span more than CLOSE_UP of the frame's
+    shorter side: a close-up view (module docstring, Markers)."""
+    return bool(median_step(lattice_steps(board)) > CLOSE_UP * min(shape[:2]))
 
 
 def _marked(sampler: Sampler, board: Board) -> bool:
