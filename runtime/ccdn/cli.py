@@ -174,7 +174,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             reasons.append(str(exc))
             continue
         boards = find_boards(gray, result.xy, result.score, args.board, allow_partial=args.partial,
-                             markers=True)  # the detector's corners of a ChArUco-style board: their search too
+                             markers=True, close_ups=True)  # a ChArUco-style board's or a close-up's: that search too
         sizes.add(result.image_size)
         paths[item.name] = item.path
         if boards:

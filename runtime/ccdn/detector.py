@@ -241,11 +241,13 @@ class Detector:
 
     def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, score: np.ndarray, xy: np.ndarray,
                  values: np.ndarray, gaps: np.ndarray, boards: bool, board_size, clock: _Clock,
-                 shade_unfound: bool = False, markers: bool = False):
+                 full_frame: bool = False, markers: bool = False):
         """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `gaps`: theirs, in
-        frame pixels) refined on gray, then the boards they form (shade_unfound: ccdn.grid.find_boards';
-        the full frame's pass asks for it: where it finds no board, no finer pass follows; markers:
-        find_boards', which the shrunk and the full frame's passes ask for, the looks not)."""
+        frame pixels) refined on gray, then the boards they form (full_frame: the full frame's pass,
+        which asks ccdn.grid.find_boards for shade_unfound and close_ups: where it finds no board, no
+        finer pass follows, while a shrunk pass keeping a close-up's piece would stop the full frame's,
+        whose uneven seeds may find all of it; markers: find_boards', which the shrunk and the full
+        frame's passes ask for, the looks not)."""
         start = (xy + 0.5) * scale - 0.5  # pixel centres of the shrunk frame in full-size pixels
         radius = window_for_spacing(median(gaps) * scale)
         if scale > 1 and self.refinement == "saddle":  # rough starts: a first pass on the shrunk frame
@@ -261,7 +263,7 @@ class Detector:
             complete = self.filter == "grid"
             found = settled(find_boards(gray, refined, values, board_size, complete=complete,
                                         uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0,
-                                        shade_unfound=shade_unfound, markers=markers), gray.shape)
+                                        shade_unfound=full_frame, markers=markers, close_ups=full_frame), gray.shape)
             if complete:
                 refined, values = _with_completed(refined, values, found, score, scale)
             if complete or board_size is not None:
@@ -313,7 +315,7 @@ class Detector:
         magnified look at its thin boards: (xy, values, boards, its score peaks)."""
         score, peaks, values, gaps = self._peaks(self._session, gray, clock, boxes)
         xy, values, found = self._corners(gray, gray, 1, score, peaks, values, gaps, boards, board_size, clock,
-                                          shade_unfound=True, markers=True)
+                                          full_frame=True, markers=True)
         if self._saddle_boards:
             xy, values, found = self._magnified(gray, thin_region(found, gray.shape), xy, values, found, boards,
                                                 board_size, clock)

@@ -62,8 +62,10 @@ OpenCV's ChArUco images: 21 -> 34 of 54 boards at 640x480, 3 -> 9 of 9 at 2000x1
 with a board found before the same). The same search finds close-ups: a few squares filling the
 frame, whose size perspective changes from one square to the next, so that the plain search's quads,
 sampled widely with one square's steps, cross into other squares; a plain board it finds is kept
-where its squares span over CLOSE_UP of the frame's shorter side (_close_up; stress close-up renders,
-squares of 100-200 px at 640x480: 12.4 -> 1.9 % missed, no false positive; every other render the same).
+where its squares span over CLOSE_UP of the frame's shorter side (_close_up), where close_ups is
+asked for (the detector's full-frame pass: on a shrunk pass, a piece of a fisheye close-up so found
+stopped the full frame's pass, which found the whole board; stress close-up renders, squares of
+100-200 px at 640x480: 12.4 -> 1.9 % missed, no false positive; every other render the same).
 
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
@@ -323,7 +325,7 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size: tuple[int, int] | None = None,
                 *, allow_partial: bool = False, complete: bool = False, uneven_seeds: int = 0,
-                shade_unfound: bool = False, markers: bool = False) -> tuple[Board, ...]:
+                shade_unfound: bool = False, markers: bool = False, close_ups: bool = False) -> tuple[Board, ...]:
     """Link corners into checkerboards: the boards found, largest first (ties: top, then left).
 
     gray: (H, W) uint8 image the corners come from. xy: (N, 2) corner positions (x, y), (0, 0) the
@@ -337,7 +339,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     (module docstring). shade_unfound (with complete): where no board is found, also search the
     levelled frame when the corner-like points lie in uneven light (module docstring, Shade).
     markers: where no board is found, search again for a board with markers in its light squares
-    (module docstring, Markers).
+    (module docstring, Markers); close_ups (with markers): keep the plain boards of close-ups that
+    search finds too.
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
@@ -368,7 +371,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     if markers and not boards:  # a ChArUco-style board or a close-up (module docstring, Markers)
         found = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete, uneven_seeds,
                         MARKER_QUADS, plain_seeds=0)
-        boards = tuple(board for board in found if _marked(sampler, board) or _close_up(board, gray.shape))
+        boards = tuple(board for board in found
+                       if _marked(sampler, board) or (close_ups and _close_up(board, gray.shape)))
     return boards
 
 
