@@ -9,13 +9,14 @@ of the light, its edge blurred 1-15 px: the lit part of a board 5-20x the contra
 part), markers (a ChArUco-style board: a random 5 x 5-bit marker with a dark border, 0.6-0.8 of the
 square's side, in every light square; the labels are the checker corners), close-ups (squares of
 100-200 px: a few squares fill the frame, running off it, their size changing from one to the next
-with perspective). Blur kernels and glare
+with perspective), fisheye close-ups (the same through a fisheye lens: 100-200 px at the centre,
+thinning to a few px at the rim). Blur kernels and glare
 keep the renderer's own ranges (motion 3-9 px, defocus radius 1-3 px).
 
 A render joins its subset only if it shows that condition and no other (`shows_condition`): the board
 wholly in frame (its outer squares too, as OpenCV needs) with every inner corner countable; except that
 two boards need only their inner corners in frame and may overlap, occluded boards must have a hidden
-corner and partial boards and close-ups a corner outside the frame. No two corners may be closer than 3 px (too close
+corner and partial boards and (fisheye) close-ups a corner outside the frame. No two corners may be closer than 3 px (too close
 to tell apart). Subset k tries seeds 7_000_000 + 10_000 k + i, i = 0, 1, ... in order (disjoint from
 every training and accuracy seed); adding a subset at the end keeps the others' images.
 
@@ -93,6 +94,7 @@ SUBSETS: dict[str, dict] = {  # name -> SceneConfig fields changed from CALM; or
     "shadow": {"p_shadow": 1.0, "shadow_depth": (0.8, 0.95)},
     "markers": {"p_markers": 1.0},
     "close-up": {"square_px": (100.0, 200.0)},
+    "fisheye-close-up": {"square_px": (100.0, 200.0), "p_fisheye": 1.0},
 }
 
 
@@ -190,7 +192,7 @@ def shows_condition(name: str, scene: Scene) -> bool:
         return False
     total = sum(cols * rows for cols, rows in scene.boards)
     in_frame = len(scene.corners) + len(scene.ignore) == total  # corners outside the image are in neither
-    if name in ("partial", "close-up"):
+    if name in ("partial", "close-up", "fisheye-close-up"):
         return len(scene.corners) > 0 and not in_frame
     if name == "occluded":
         return in_frame and len(scene.ignore) > 0

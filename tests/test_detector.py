@@ -423,6 +423,17 @@ def test_a_close_up_whose_squares_change_size_from_one_to_the_next_is_found():
     assert (nearest_distances(result.xy, truth) < 0.3).all()
 
 
+def test_a_fisheye_close_up_is_grown_from_its_large_squares_to_its_thin_rim():
+    """Through a fisheye lens a close-up's squares shrink 1.5-2 x from one to the next towards the rim
+    and its rows curve (the stress set's fisheye close-up render 7190005: 66 corners, none found
+    before). Growth predicts along a line by scaling and turning its last step as the one before it
+    was, and tests a candidate with the steps measured at it: the board is found whole."""
+    scene = stress_scene("fisheye-close-up", 7_190_005)
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert [len(board) for board in result.boards] == [len(scene.corners)]
+    assert (nearest_distances(result.xy, scene.corners) < 0.5).all()
+
+
 def test_corners_under_a_shadows_edge_are_completed():
     """Where a blurred shadow's edge crosses a board, the light falls across a corner's quads: at
     their centres, half a square away, a lit dark square can outshine a shaded light one, and
