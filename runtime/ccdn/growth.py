@@ -357,9 +357,9 @@ class Grower(Completion, Cleanup, Bridging):
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio_u = np.hypot(mu[:, 0], mu[:, 1]) / np.hypot(u[:, 0], u[:, 1])
             ratio_v = np.hypot(mv[:, 0], mv[:, 1]) / np.hypot(v[:, 0], v[:, 1])
+            changed = (np.abs(np.log(np.where(has_u, ratio_u, ratio_v))) > np.log(STEP_CHANGE))[:, None]
         new_u = np.where(has_u[:, None], mu, u * np.where(has_v, ratio_v, 1.0)[:, None])
         new_v = np.where(has_v[:, None], mv, v * np.where(has_u, ratio_u, 1.0)[:, None])
-        changed = (np.abs(np.log(np.where(has_u, ratio_u, ratio_v))) > np.log(STEP_CHANGE))[:, None]
         return np.where(changed, new_u, u), np.where(changed, new_v, v)
 
     def _crowded(self, corners: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
