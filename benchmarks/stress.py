@@ -10,14 +10,14 @@ part), markers (a ChArUco-style board: a random 5 x 5-bit marker with a dark bor
 square's side, in every light square; the labels are the checker corners), close-ups (squares of
 100-200 px: a few squares fill the frame, running off it, their size changing from one to the next
 with perspective), fisheye close-ups (the same through a fisheye lens: 100-200 px at the centre,
-thinning to a few px at the rim). Blur kernels and glare
-keep the renderer's own ranges (motion 3-9 px, defocus radius 1-3 px).
+thinning to a few px at the rim). Blur kernels and glare keep the renderer's own ranges (motion 3-9
+px, defocus radius 1-3 px).
 
 A render joins its subset only if it shows that condition and no other (`shows_condition`): the board
 wholly in frame (its outer squares too, as OpenCV needs) with every inner corner countable; except that
 two boards need only their inner corners in frame and may overlap, occluded boards must have a hidden
-corner and partial boards and (fisheye) close-ups a corner outside the frame. No two corners may be closer than 3 px (too close
-to tell apart). Subset k tries seeds 7_000_000 + 10_000 k + i, i = 0, 1, ... in order (disjoint from
+corner, and partial boards and (fisheye) close-ups a corner outside the frame. No two corners may be
+closer than 3 px (too close to tell apart). Subset k tries seeds 7_000_000 + 10_000 k + i, i = 0, 1, ... in order (disjoint from
 every training and accuracy seed); adding a subset at the end keeps the others' images.
 
 All detectors (benchmarks/peers.py) run on the same images in one run. Metrics are the paper's

@@ -81,10 +81,11 @@ FULL_FRAME_UNEVEN_SEEDS = 1  # on the full frame a seed square may have a corner
 # crosses (ccdn.grid); not on shrunk passes, where finding a hard board would stop the finer passes
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
 PAPER_THRESHOLD = (0.5, 0.3)  # the paper's half of the maximum (and a floor), for the other filters
-MIN_BOARD_SQUARE = 5.0  # px: a board whose squares' longer side (median over its corners) is shorter is dropped
-# (_without_tiny_boards): smaller than any square the networks were trained on (6 px) or the benchmarks hold, and
-# where lines cross clutter holds such lattices (a double-lined grid: a false board of 14 corners, ~4 px steps,
-# in a fresh extreme-pose render); the smallest true board on ~1800 cached frames measured 5.7 px
+MIN_BOARD_SQUARE = 5.0  # px: a board of the full frame's pass or its looks (a shrunk pass finds none so small) whose
+# squares' longer side (median over its corners) is shorter is dropped (_without_tiny_boards): smaller than any
+# square the networks were trained on (6 px) or the benchmarks hold, and where lines cross, clutter holds such
+# lattices (a double-lined grid: a false board of 14 corners, ~4 px steps, in a fresh extreme-pose render); the
+# smallest true board on ~1800 cached frames measured 5.7 px
 
 
 class Detector:
