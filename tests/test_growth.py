@@ -11,7 +11,7 @@ import pytest
 
 from ccdn.checker import Sampler
 from ccdn.grid import Board, find_boards, nearest_neighbours
-from ccdn.growth import Grower, _extrapolated
+from ccdn.growth import Grower
 from conftest import index_map, nearest_distances, no_holes, stress_scene, true_board, true_part, whole_boards
 
 pytest.importorskip("ccdn_training.synth")
@@ -132,21 +132,3 @@ def test_a_crowded_corner_whose_wide_quads_are_mixed_gets_no_second_chance(monke
         monkeypatch.setattr("ccdn.growth.CROWDED", crowded)
         found = ccdn.Detector(threads=2).detect(scene.image)
         assert (nearest_distances(labelled, found.xy) > 2.5).sum() == false
-
-
-def test_a_line_whose_steps_shrink_and_turn_evenly_is_extrapolated_exactly():
-    """Across a fisheye close-up the squares shrink or grow 1.5-2 x from one to the next and the rows
-    curve: growth predicts a line's next corner by scaling and turning its last step as the one
-    before it was (a similarity), where 3 p1 - 3 p2 + p3 missed by 0.2-0.4 of the step there. Without
-    a third corner, or with an implausible ratio (a wrong corner's), the straight 2 p1 - p2."""
-    turn = 0.6 * np.exp(0.2j)  # each step 0.6 x the one before, turned 0.2 rad
-    steps = 40.0 * turn ** np.arange(4)
-    line = np.concatenate([[0], np.cumsum(steps)])  # p3, p2, p1, then the truth
-    p3, p2, p1 = (np.array([[line[k].real, line[k].imag]]) for k in range(3))
-    truth = np.array([[line[3].real, line[3].imag]])
-    np.testing.assert_allclose(_extrapolated(p1, p2, p3), truth, atol=1e-9)
-    assert np.linalg.norm(3 * p1 - 3 * p2 + p3 - truth) > 0.15 * abs(steps[2])
-    no_third = np.full_like(p3, np.nan)
-    np.testing.assert_array_equal(_extrapolated(p1, p2, no_third), 2 * p1 - p2)
-    zigzag = p2 + 5 * (p2 - p3)  # a step 5 x the one before
-    np.testing.assert_array_equal(_extrapolated(zigzag, p2, p3), 2 * zigzag - p2)

@@ -6,9 +6,8 @@ the free corners within 0.3 of the shorter lattice step of a prediction that pas
 join where they connect to the grid along rows and columns (a 9 x 9 board fills in ~3 such rounds; a
 fit off by more than 5 % of a step anywhere, as under lens distortion, stops this). Then position by
 position: each empty neighbour of the grid is predicted from the grid (along a row or column from
-the previous three corners, the last step scaled and turned as the one before it was, or from two,
-2 p1 - p2, also across a hole, and from parallelograms with diagonal neighbours; the median of the
-predictions), and the nearest free corner within 0.3 of the
+the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms with
+diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of the
 shorter local lattice step (or of 1.5 x the cell's lesser height, where that is less: SLIVER_REACH)
 is taken if it passes the image test. No corner is taken where the local steps are flatter than a
 seed's may be (the sine of their angle at most MIN_SINE, in every growth step): on the slivers of
@@ -31,11 +30,8 @@ penumbra. Within 0.15 of a step: 5 more on the 1140 looked at first, but 8 of th
 lent a position its second side: 7 false positives).
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
-level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps, or in
-the position-by-position rounds those measured from the candidate to its filled neighbours where
-they differ by over STEP_CHANGE: across a fisheye close-up, whose squares grow or shrink 1.5-2 x from
-one to the next, the filled squares' steps sampled quads outside the candidate's; halfway to a
-centre that is off the image) and all four edge-adjacent quad pairs must differ with the
+level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
+to a centre that is off the image) and all four edge-adjacent quad pairs must differ with the
 board's sign (fixed at its seed: quads with even row + col are all dark or all light), their median
 by at least 0.05 of the seed's contrast (a board's part in deep shade keeps a fifth to a twentieth
 of it) and the weakest by 0.15 of the strongest, on a log scale of grey (SHADE_OFFSET): a shadow
@@ -92,11 +88,6 @@ PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner, on the log sc
 WIDE_SPREAD = 1.5  # growth's image test: quads sampled as widely as a seed's vary by at most this x their contrast ...
 CROWDED = 0.75  # ... at a corner with another this close (x the shorter lattice step): other corners in its cells
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
-EXTRAPOLATION_RATIO = (0.4, 2.5)  # growth's predictions along a line scale its last step by the ratio of the last
-# two steps within these bounds (_extrapolated; a wrong corner's step gives any ratio)
-STEP_CHANGE = 1.3  # growth's image test takes the steps measured at a candidate where they differ from the grid's
-# by more than this factor either way (Grower._steps_at); on the steep slivers of an extreme pose, the measured
-# steps of cells barely square enough turned the sheared-cell guard (MIN_SINE) either way: a board of 55 lost 17
 VOUCH_REACH = 0.05  # a free corner this close (x the shorter local step) to the prediction at a position held on
 # LOOSE_NEIGHBOURS sides or more joins the pruned board without the image test where its network score is ...
 VOUCH_SCORE = 0.5  # ... at least this x the board's median (Grower.vouch)
@@ -223,11 +214,12 @@ class Grower(Completion, Cleanup, Bridging):
 
     def _predict(self, cells: np.ndarray) -> np.ndarray:
         """Predicted positions (K, 2) of canvas cells from the grid: along each row/column from the
-        previous two or three corners (_extrapolated; or across a hole), and parallelograms with
-        diagonal neighbours; the median of the predictions, NaN without any."""
+        previous two or three corners (or across a hole), and parallelograms with diagonal
+        neighbours; the median of the predictions, NaN without any."""
         p = self._gather(cells[:, 0:1] + _PRED_R, cells[:, 1:2] + _PRED_C)  # (K, 24, 2)
         p1, p2, p3 = p[:, 0:4], p[:, 4:8], p[:, 8:12]  # k = 1, 2, 3 steps along the 4 directions
-        line = np.where(np.isfinite(p2), _extrapolated(p1, p2, p3), 1.5 * p1 - 0.5 * p3)
+        line = np.where(np.isfinite(p3), 3 * p1 - 3 * p2 + p3, 2 * p1 - p2)
+        line = np.where(np.isfinite(p2), line, 1.5 * p1 - 0.5 * p3)
         diagonal = p[:, 12:16] + p[:, 16:20] - p[:, 20:24]
         return nanmedian_rows(np.concatenate([line, diagonal], 1))
 
@@ -327,40 +319,12 @@ class Grower(Completion, Cleanup, Bridging):
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
         if len(ok) == 0:
             return none, none
-        points = self.xy[candidate[ok]]
-        u, v = self._steps_at(cells[ok], points, u[ok], v[ok]) if local else (u[ok], v[ok])
-        ok = ok[self._accepts(cells[ok], points, u, v, crowded=self._crowded(candidate[ok], u, v))]
+        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok],
+                              crowded=self._crowded(candidate[ok], u[ok], v[ok]))]
         if local:
             ok = ok[self._straight(cells[ok], self.xy[candidate[ok]])]
         ok = _nearest_cell_wins(ok, dist, candidate)
         return ok, candidate[ok]
-
-    def _steps_at(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-        """The lattice steps (K, 2) for the image test of candidate points (K, 2) at canvas cells,
-        given the grid's steps u, v there: where the step from the point to its filled neighbour
-        along the row (u) or the column (v) differs in length from the grid's by over STEP_CHANGE
-        either way, the measured steps (the other one, where it has no such neighbour, scaled
-        alike); the grid's elsewhere. Across a fisheye close-up the squares grow or shrink 1.5-2 x
-        from one to the next, and the grid's steps, taken from the filled squares beside, sampled
-        quads outside the candidate's own (module docstring)."""
-        measured = []
-        for along_row, grid_step in ((True, u), (False, v)):
-            step = np.full_like(grid_step, np.nan)
-            for side in (-1, 1):
-                neighbour = (self._gather(cells[:, 0], cells[:, 1] + side) if along_row
-                             else self._gather(cells[:, 0] + side, cells[:, 1]))
-                step = np.where(np.isnan(step[:, :1]), side * (neighbour - points), step)
-            measured.append(step)
-        mu, mv = measured
-        has_u, has_v = np.isfinite(mu[:, 0]), np.isfinite(mv[:, 0])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ratio_u = np.hypot(mu[:, 0], mu[:, 1]) / np.hypot(u[:, 0], u[:, 1])
-            ratio_v = np.hypot(mv[:, 0], mv[:, 1]) / np.hypot(v[:, 0], v[:, 1])
-            changed = (np.abs(np.log(np.where(has_u, ratio_u, ratio_v))) > np.log(STEP_CHANGE))[:, None]
-        new_u = np.where(has_u[:, None], mu, u * np.where(has_v, ratio_v, 1.0)[:, None])
-        new_v = np.where(has_v[:, None], mv, v * np.where(has_u, ratio_u, 1.0)[:, None])
-        return np.where(changed, new_u, u), np.where(changed, new_v, v)
 
     def _crowded(self, corners: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(K,) whether corners (K,) have another within CROWDED of the shorter of their steps u, v: inside
@@ -543,22 +507,6 @@ class Grower(Completion, Cleanup, Bridging):
         """The board so far: grid positions (M, 2) (row, col) and corner indices (M,)."""
         rc = np.argwhere(self.idx >= 0)
         return rc - self.origin, self.idx[rc[:, 0], rc[:, 1]]
-
-
-def _extrapolated(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray) -> np.ndarray:
-    """The next point (..., 2) of each line of points p3, p2, p1 (..., 2; p3 may be NaN): p1 plus the
-    step p2 -> p1 scaled and turned as the step p3 -> p2 was into it (a similarity: exact where
-    squares grow or shrink by a constant ratio and a line turns evenly, as across a fisheye
-    close-up), where that ratio's size is within EXTRAPOLATION_RATIO; 2 p1 - p2 elsewhere."""
-    d1, d2 = p1 - p2, p2 - p3
-    z1, z2 = d1[..., 0] + 1j * d1[..., 1], d2[..., 0] + 1j * d2[..., 1]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = z1 / z2
-    low, high = EXTRAPOLATION_RATIO
-    ratio = np.where((np.abs(ratio) > low) & (np.abs(ratio) < high), ratio, np.nan)
-    step = ratio * z1
-    similar = p1 + np.stack([step.real, step.imag], -1)
-    return np.where(np.isfinite(similar), similar, 2 * p1 - p2)
 
 
 def _nearest_cell_wins(ok: np.ndarray, dist: np.ndarray, corner: np.ndarray) -> np.ndarray:
