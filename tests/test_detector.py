@@ -434,6 +434,32 @@ def test_a_fisheye_close_up_is_told_by_its_largest_squares():
     assert (nearest_distances(scene.corners, result.xy) < 0.5).all()  # every corner found is a true one
 
 
+def test_a_fisheye_close_up_is_grown_from_its_large_squares_to_its_thin_rim():
+    """Through a fisheye lens a close-up's squares shrink 1.5-2 x from one to the next towards the rim
+    (the stress set's fisheye close-up render 7190005: 66 corners, none found before). Growth tests a
+    candidate with the lattice steps measured at it where they differ from its neighbours' by over
+    ccdn.growth.STEP_CHANGE (theirs sample quads outside its squares): the board is found whole."""
+    scene = stress_scene("fisheye-close-up", 7_190_005)
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert [len(board) for board in result.boards] == [len(scene.corners)]
+    assert (nearest_distances(result.xy, scene.corners) < 0.5).all()
+
+
+def test_a_prediction_two_corners_fit_about_as_well_takes_neither():
+    """Between fast-growing squares a growth prediction can fall between two corners (the stress
+    set's fisheye close-up render 7190032: 26 and 29 px off, a tolerance of 27 px); the nearer, a
+    knight's move from the right position, gave a wrongly indexed board. A corner over half the
+    tolerance off is not taken where the next lies within 1.5 x its distance (ccdn.growth.AMBIGUOUS):
+    every board found maps onto the true indices by one rotation and one offset."""
+    scene = stress_scene("fisheye-close-up", 7_190_032)
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert result.boards
+    for board in result.boards:
+        apart = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+        assert (apart.min(1) < 0.5).all()
+        assert index_map(board, scene.grid[apart.argmin(1)]) is not None
+
+
 def test_corners_under_a_shadows_edge_are_completed():
     """Where a blurred shadow's edge crosses a board, the light falls across a corner's quads: at
     their centres, half a square away, a lit dark square can outshine a shaded light one, and

@@ -30,8 +30,11 @@ penumbra. Within 0.15 of a step: 5 more on the 1140 looked at first, but 8 of th
 lent a position its second side: 7 false positives).
 
 Image test: at a checker corner the four squares around it alternate dark/light. The mean grey
-level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps; halfway
-to a centre that is off the image) and all four edge-adjacent quad pairs must differ with the
+level is sampled at the four quad centres p +- u/2 +- v/2 (u, v: the local lattice steps, or in
+the position-by-position rounds those measured from the candidate to its filled neighbours where
+they differ by over STEP_CHANGE: across a fisheye close-up, whose squares grow or shrink 1.5-2 x from
+one to the next, the filled squares' steps sampled quads outside the candidate's; halfway to a
+centre that is off the image) and all four edge-adjacent quad pairs must differ with the
 board's sign (fixed at its seed: quads with even row + col are all dark or all light), their median
 by at least 0.05 of the seed's contrast (a board's part in deep shade keeps a fifth to a twentieth
 of it) and the weakest by 0.15 of the strongest, on a log scale of grey (SHADE_OFFSET): a shadow
@@ -88,6 +91,13 @@ PAIR_RATIO = 0.15  # weakest over strongest quad pair at a corner, on the log sc
 WIDE_SPREAD = 1.5  # growth's image test: quads sampled as widely as a seed's vary by at most this x their contrast ...
 CROWDED = 0.75  # ... at a corner with another this close (x the shorter lattice step): other corners in its cells
 NEAR_QUADS = 0.36  # share of the way to the quad centres where the image test's second chance samples
+STEP_CHANGE = 1.3  # growth's image test takes the steps measured at a candidate where they differ from the grid's
+# by more than this factor either way (Grower._steps_at); on the steep slivers of an extreme pose, the measured
+# steps of cells barely square enough turned the sheared-cell guard (MIN_SINE) either way: a board of 55 lost 17
+AMBIGUOUS = (0.5, 1.5)  # a free corner farther from its prediction than this share of the tolerance is not taken
+# where the next nearest free corner lies within this factor of its distance: between fast-growing squares a
+# prediction fell between two corners (fisheye close-up 7190032: 26 and 29 px off, a tolerance of 27), and the
+# nearer, a knight's move from the right one, made a wrongly indexed board
 VOUCH_REACH = 0.05  # a free corner this close (x the shorter local step) to the prediction at a position held on
 # LOOSE_NEIGHBOURS sides or more joins the pruned board without the image test where its network score is ...
 VOUCH_SCORE = 0.5  # ... at least this x the board's median (Grower.vouch)
@@ -317,14 +327,57 @@ class Grower(Completion, Cleanup, Bridging):
             return none, none
         candidate, dist = nearest
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
+        ok = ok[~self._ambiguous(ok, preds, dist, tol)]
         if len(ok) == 0:
             return none, none
-        ok = ok[self._accepts(cells[ok], self.xy[candidate[ok]], u[ok], v[ok],
-                              crowded=self._crowded(candidate[ok], u[ok], v[ok]))]
+        points = self.xy[candidate[ok]]
+        u, v = self._steps_at(cells[ok], points, u[ok], v[ok]) if local else (u[ok], v[ok])
+        ok = ok[self._accepts(cells[ok], points, u, v, crowded=self._crowded(candidate[ok], u, v))]
         if local:
             ok = ok[self._straight(cells[ok], self.xy[candidate[ok]])]
         ok = _nearest_cell_wins(ok, dist, candidate)
         return ok, candidate[ok]
+
+    def _ambiguous(self, ok: np.ndarray, preds: np.ndarray, dist: np.ndarray, tol: np.ndarray) -> np.ndarray:
+        """(len(ok),) whether the cells `ok` (indices) have their nearest free corner over AMBIGUOUS[0]
+        of the tolerance from their prediction and the next nearest within AMBIGUOUS[1] x its
+        distance: a prediction two corners fit about as well (AMBIGUOUS)."""
+        ambiguous = dist[ok] > AMBIGUOUS[0] * tol[ok]
+        if not ambiguous.any():
+            return ambiguous
+        free = np.nonzero(self.free)[0]
+        if len(free) < 2:
+            return np.zeros(len(ok), bool)
+        nearest_two = np.sort(distances(preds[ok[ambiguous]], self.xy[free]), 1)[:, :2]
+        ambiguous[ambiguous] = nearest_two[:, 1] < AMBIGUOUS[1] * nearest_two[:, 0]
+        return ambiguous
+
+    def _steps_at(self, cells: np.ndarray, points: np.ndarray, u: np.ndarray, v: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """The lattice steps (K, 2) for the image test of candidate points (K, 2) at canvas cells,
+        given the grid's steps u, v there: where the step from the point to its filled neighbour
+        along the row (u) or the column (v) differs in length from the grid's by over STEP_CHANGE
+        either way, the measured steps (the other one, where it has no such neighbour, scaled
+        alike); the grid's elsewhere. Across a fisheye close-up the squares grow or shrink 1.5-2 x
+        from one to the next, and the grid's steps, taken from the filled squares beside, sampled
+        quads outside the candidate's own (module docstring)."""
+        measured = []
+        for along_row, grid_step in ((True, u), (False, v)):
+            step = np.full_like(grid_step, np.nan)
+            for side in (-1, 1):
+                neighbour = (self._gather(cells[:, 0], cells[:, 1] + side) if along_row
+                             else self._gather(cells[:, 0] + side, cells[:, 1]))
+                step = np.where(np.isnan(step[:, :1]), side * (neighbour - points), step)
+            measured.append(step)
+        mu, mv = measured
+        has_u, has_v = np.isfinite(mu[:, 0]), np.isfinite(mv[:, 0])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio_u = np.hypot(mu[:, 0], mu[:, 1]) / np.hypot(u[:, 0], u[:, 1])
+            ratio_v = np.hypot(mv[:, 0], mv[:, 1]) / np.hypot(v[:, 0], v[:, 1])
+            changed = (np.abs(np.log(np.where(has_u, ratio_u, ratio_v))) > np.log(STEP_CHANGE))[:, None]
+        new_u = np.where(has_u[:, None], mu, u * np.where(has_v, ratio_v, 1.0)[:, None])
+        new_v = np.where(has_v[:, None], mv, v * np.where(has_u, ratio_u, 1.0)[:, None])
+        return np.where(changed, new_u, u), np.where(changed, new_v, v)
 
     def _crowded(self, corners: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(K,) whether corners (K,) have another within CROWDED of the shorter of their steps u, v: inside
