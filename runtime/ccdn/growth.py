@@ -9,8 +9,9 @@ position: each empty neighbour of the grid is predicted from the grid (along a r
 the previous two or three corners, e.g. 2 p1 - p2, also across a hole, and from parallelograms with
 diagonal neighbours; the median of the predictions), and the nearest free corner within 0.3 of the
 shorter local lattice step (or of 1.5 x the cell's lesser height, where that is less: SLIVER_REACH)
-is taken if it passes the image test. No corner is taken where the local steps are flatter than a
-seed's may be (the sine of their angle at most MIN_SINE, in every growth step): on the slivers of
+is taken if it passes the image test, and unless, lying over half that tolerance off, another free
+corner fits the prediction about as well (AMBIGUOUS; in the ring-at-once rounds too). No corner is
+taken where the local steps are flatter than a seed's may be (the sine of their angle at most MIN_SINE, in every growth step): on the slivers of
 boards tilted 60-75 degrees the tips where two squares of one colour nearly touch score like
 corners, and a lattice of such tips passed the image test (a stress render: 16 of a board's 25
 corners 2-4 px off). Nor do these rounds or completion take one that turns a row or column sharply
