@@ -97,7 +97,7 @@ from .growth import Grower
 from .lattice import SEED_AXES, SEED_REACH_UNIFORM, distances, held_on_two_sides, inside_margin
 from .seeds import SEED_CHUNK, SEED_REACH, NearQuads, seed_squares
 from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_spread, points_light_spread
-from .stats import median, vector_lengths
+from .stats import median, quantile, vector_lengths
 
 MIN_CORNERS = 8
 MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board behind another (module docstring)
@@ -382,7 +382,7 @@ def _close_up(board: Board, shape: tuple[int, ...]) -> bool:
     """Whether a board's largest squares (the 90th percentile of its lattice steps' lengths) span more
     than CLOSE_UP of the frame's shorter side: a close-up view (module docstring, Markers)."""
     lengths = vector_lengths(lattice_steps(board))
-    return bool(np.quantile(lengths[np.isfinite(lengths)], 0.9) > CLOSE_UP * min(shape[:2]))
+    return quantile(lengths[np.isfinite(lengths)], 0.9) > CLOSE_UP * min(shape[:2])  # np.quantile imports numpy.ma
 
 
 def _marked(sampler: Sampler, board: Board) -> bool:
