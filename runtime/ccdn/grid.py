@@ -67,6 +67,16 @@ asked for (the detector's full-frame pass: on a shrunk pass, a piece of a fishey
 stopped the full frame's pass, which found the whole board; stress close-up renders, squares of
 100-200 px at 640x480: 12.4 -> 1.9 % missed, no false positive; every other render the same).
 
+Close-ups linked (close_ups: the detector's full-frame pass): through a fisheye lens a close-up's
+squares shrink from over 100 px at the centre to a few px at the rim within a few rows, faster than
+growth's predictions follow, and such boards were found in pieces or not at all although the
+network scores their corners. Where at least MIN_CORNERS corners are in no board, the corners are
+also linked along the board's edges (ccdn.linked: no prediction, each pair of neighbours tested for
+an edge between them), and each close-up (_close_up) so linked replaces the boards it shares corners
+with where it holds more corners than they do together (stress fisheye close-up renders, 40 at
+640x480: 42.1 -> 11.5 % missed, no board wrongly indexed; the close-up renders and every other
+render the same).
+
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
 2. Which grid axis is "col": the one fixed by `board_size` when it is given and not square;
@@ -89,12 +99,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from .checker import Sampler, quad_levels, x_like
 from .edges import lattice_steps, median_step
 from .growth import Grower
 from .lattice import SEED_AXES, SEED_REACH_UNIFORM, distances, held_on_two_sides, inside_margin
+from .linked import edge_pairs, kept_edges, linked_components
 from .seeds import SEED_CHUNK, SEED_REACH, NearQuads, seed_squares
 from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from .stats import median, quantile, vector_lengths
@@ -120,6 +132,7 @@ SAMPLED_REACH = 4.0  # x the corners' median gap: how far around them find_board
 # (ccdn.checker.Sampler; real-dev frames at 4000x3000: 12.3 -> 6.0 Mpx a frame; 2 and 3 grew the window more often)
 SHADE_SPREAD = 2.0  # a board lit more unevenly (ccdn.shade.light_spread) is searched for again, levelled: 1.5 found
 # the same corners on shadow renders; every board (0) 7 more of 6427, for a second search on every frame
+LINK_BLUR = 0.8  # px: the Gaussian the image is smoothed with before corners are linked along its edges (ccdn.linked)
 _ROTATIONS = (((1, 0), (0, 1)), ((0, -1), (1, 0)), ((-1, 0), (0, -1)), ((0, 1), (-1, 0)))  # the 4 proper
 # rotations of grid indices, (new_row, new_col) = M (row, col)
 
@@ -342,7 +355,8 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     levelled frame when the corner-like points lie in uneven light (module docstring, Shade).
     markers: where no board is found, search again for a board with markers in its light squares
     (module docstring, Markers); close_ups (with markers): keep the plain boards of close-ups that
-    search finds too.
+    search finds too, and link corners along their edges for the close-ups growth missed (module
+    docstring, Close-ups linked).
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
@@ -375,7 +389,38 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
                         MARKER_QUADS, plain_seeds=0)
         boards = tuple(board for board in found
                        if _marked(sampler, board) or (close_ups and _close_up(board, gray.shape)))
+    if close_ups:
+        boards = _with_linked_close_ups(gray, xy, neighbours, boards, board_size)
     return boards
+
+
+def _with_linked_close_ups(gray: np.ndarray, xy: np.ndarray, neighbours: np.ndarray, boards: tuple[Board, ...],
+                           board_size: tuple[int, int] | None) -> tuple[Board, ...]:
+    """The boards with each close-up (_close_up) that linking corners along their edges finds
+    (ccdn.linked) in place of the boards it shares corners with, where it holds more corners than
+    they do together (module docstring, Close-ups linked). Only where MIN_CORNERS corners are in no
+    board, or any is and a board is a close-up."""
+    taken = np.zeros(len(xy), bool)
+    for board in boards:
+        taken[board.corner_index[board.corner_index < len(xy)]] = True
+    left = int((~taken).sum())
+    if left < MIN_CORNERS and not (left and any(_close_up(board, gray.shape) for board in boards)):
+        return boards
+    image = cv2.GaussianBlur(gray, (0, 0), LINK_BLUR).astype(np.float32)
+    pairs, sign = edge_pairs(image, xy, neighbours)
+    inside = inside_margin(xy, gray.shape)[pairs].all(1)  # a corner at the frame's edge is in no board
+    pairs, sign = kept_edges(xy, pairs[inside], sign[inside])
+    kept, changed = list(boards), False
+    for idx, grid, light in linked_components(image, xy, pairs, sign, MIN_CORNERS):
+        board = reoriented(indexed_board(idx, grid, xy[idx]), light, board_size)
+        if (board is None or min(board.cols, board.rows) < MIN_EXTENT or not _close_up(board, gray.shape)):
+            continue
+        mine = np.zeros(len(xy) + 1, bool)
+        mine[idx] = True
+        overlapping = [b for b in kept if mine[np.minimum(b.corner_index, len(xy))].any()]
+        if len(board) > sum(map(len, overlapping)):
+            kept, changed = [b for b in kept if not any(b is o for o in overlapping)] + [board], True
+    return tuple(largest_first(kept)) if changed else boards
 
 
 def _close_up(board: Board, shape: tuple[int, ...]) -> bool:
