@@ -65,7 +65,7 @@ def test_a_fisheye_close_up_growth_misses_is_linked_along_its_edges(seed):
 def test_a_corner_hanging_on_one_long_edge_is_dropped(monkeypatch):
     """A corner at a fisheye close-up's rim linked by one edge that spans corners the network missed
     (7190031: (28, 195) px, rows off) would be indexed wrongly; a corner held by one edge only is
-    kept where the line's squares shrink towards it (ccdn.linked._shrinking). The board the detector
+    dropped but where the frame cuts its line (ccdn.linked._cut_by_frame). The board the detector
     returns there is indexed as the render's; keeping every such corner, it is not."""
     scene = stress_scene("fisheye-close-up", 7_190_031)
 
@@ -77,7 +77,7 @@ def test_a_corner_hanging_on_one_long_edge_is_dropped(monkeypatch):
     result = ccdn.Detector(threads=2).detect(scene.image)
     assert (nearest_distances(scene.corners, result.xy) < 1.0).all()  # every corner found is a true one
     assert indexed_right(result)
-    monkeypatch.setattr(ccdn.linked, "_shrinking", lambda *args: True)
+    monkeypatch.setattr(ccdn.linked, "_cut_by_frame", lambda *args: True)
     assert not indexed_right(ccdn.Detector(threads=2).detect(scene.image))
 
 
@@ -90,17 +90,3 @@ def test_clutter_linked_into_a_zigzag_is_no_board():
     assert [len(board) for board in result.boards] == [len(scene.corners)]
     assert (nearest_distances(scene.corners, result.xy) < 1.0).all()
 
-
-def test_a_point_of_the_outline_is_no_corner(monkeypatch):
-    """Where a fisheye close-up's outer squares meet the background (7190014: (522, 14) px), the
-    outline looks like a corner and links like one; past a board's last inner corner its line runs
-    on between a dark and a light square, past such a point between background on both sides
-    (ccdn.linked._outline_shown). Every corner the detector returns there is a true one; without
-    that test one is 30 px from any."""
-    scene = stress_scene("fisheye-close-up", 7_190_014)
-    result = ccdn.Detector(threads=2).detect(scene.image)
-    assert len(result.xy) >= 0.9 * len(scene.corners)
-    assert (nearest_distances(scene.corners, result.xy) < 1.0).all()
-    monkeypatch.setattr(ccdn.linked, "_outline_shown", lambda image, xy, cells, *rest: cells)
-    unchecked = ccdn.Detector(threads=2).detect(scene.image)
-    assert (nearest_distances(scene.corners, unchecked.xy) > 20).any()

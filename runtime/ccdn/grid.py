@@ -411,7 +411,7 @@ def _with_linked_close_ups(gray: np.ndarray, xy: np.ndarray, neighbours: np.ndar
     inside = inside_margin(xy, gray.shape)[pairs].all(1)  # a corner at the frame's edge is in no board
     pairs, sign = kept_edges(xy, pairs[inside], sign[inside])
     kept, changed = list(boards), False
-    for idx, grid, light in linked_components(image, xy, pairs, sign, MIN_CORNERS):
+    for idx, grid, light in linked_components(gray.shape, xy, pairs, sign, MIN_CORNERS):
         board = reoriented(indexed_board(idx, grid, xy[idx]), light, board_size)
         if (board is None or min(board.cols, board.rows) < MIN_EXTENT or not _close_up(board, gray.shape)):
             continue

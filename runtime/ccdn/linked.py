@@ -21,12 +21,15 @@ board's own edges link its corners instead:
    v, the edge back has -v, the other edge of the same sign +v, and the edges of the other sign
    the perpendicular steps, told apart by the side they leave on (a view never mirrors the board).
    A corner on an edge that disagrees with the walk's indices, or sharing its position with
-   another, is dropped and the walk repeats, at most MAX_DROPS times. A corner held by one edge
-   only is kept where it is shorter than the edge continuing its line (_confirmed): a longer one
-   may span a corner the network missed (a fisheye close-up's rim: one board of 40 indexed
-   wrongly, with it none). A component whose rows and columns turn by more than MAX_MEDIAN_TURN
-   at the median corner is no board (_smooth): a lens bends a board's lines gradually, while
-   links through clutter zigzag.
+   another, is dropped and the walk repeats, at most MAX_DROPS times. So is a corner held by one
+   edge only, as long as any is (_confirmed), but where the frame cuts its line: at a fisheye's
+   rim such a step may span corners the network missed (a wrongly indexed board), where an
+   occluder's outline crosses the board's edges it may end on that outline (a false corner;
+   fisheye close-ups, 80 renders: kept where shorter than the step continuing their line, 2
+   boards wrongly indexed and 7 false corners; dropped but where the frame cuts their line, none
+   and 1). A component
+   whose rows and columns turn by more than MAX_MEDIAN_TURN at the median corner is no board
+   (_smooth): a lens bends a board's lines gradually, while links through clutter zigzag.
 
 The sign of an edge tells the colour of the squares beside it, so the board's light squares come
 with it, which ccdn.grid orients its indices by.
@@ -52,16 +55,14 @@ EDGE_CONTRAST = 0.25  # an edge's median difference across it, of the strongest 
 OPPOSITE = -0.3  # cosine: a corner's second edge of a sign points away from its first
 MAX_MEDIAN_TURN = 15.0  # degrees: a component's rows and columns turn less at the median corner (_smooth). Fisheye
 # close-ups: 3-10; clutter linked beside a motion-blurred board (fresh render 7030523): 25-51
-BEYOND_SAMPLES = np.array([0.1, 0.15, 0.2])  # of the step to the corner inside: past an outline corner (_outline_shown)
-BEYOND_OFFSET = 0.06  # of that step: how far off the line it is sampled there
-BEYOND_FLAT = 0.2  # of the contrast across the step: less past the corner is no edge
 MAX_DROPS = 10  # corners dropped for disagreeing with a walk before the component is given up
 
 
 def edge_pairs(image: np.ndarray, xy: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The pairs (E, 2) of corners xy among each one's `neighbours` (N, >= LINK_REACH) that are edges
-    of a checkerboard in `image` (float32, smoothed) (module docstring, 1), with their signs (E,): +1 where the side to the left of
-    the step from the first to the second (x right, y down: its +90-degree normal) is the lighter."""
+    of a checkerboard in `image` (float32, smoothed; module docstring, 1), with their signs (E,): +1
+    where the side to the left of the step from the first to the second (x right, y down: its
+    +90-degree normal) is the lighter."""
     n = len(xy)
     pairs = np.stack([np.repeat(np.arange(n), neighbours[:, :LINK_REACH].shape[1]),
                       neighbours[:, :LINK_REACH].ravel()], 1)
@@ -131,11 +132,12 @@ def kept_edges(xy: np.ndarray, pairs: np.ndarray, sign: np.ndarray) -> tuple[np.
     return pairs[both], sign[both]
 
 
-def linked_components(image: np.ndarray, xy: np.ndarray, pairs: np.ndarray, sign: np.ndarray, min_corners: int
+def linked_components(shape: tuple[int, ...], xy: np.ndarray, pairs: np.ndarray, sign: np.ndarray, min_corners: int
                       ) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """Corners indexed by walks along the kept edges (module docstring, 3): per component of at least
     min_corners, largest first, (corner indices (M,), (row, col) (M, 2) from 0, sign: + where the
-    squares of even row + col, between (row, col) and (row + 1, col + 1), are light)."""
+    squares of even row + col, between (row, col) and (row + 1, col + 1), are light). shape: the
+    image's (H, W, ...), where a line the frame cuts may end in a corner held by one edge."""
     adjacent: list[dict[int, int]] = [{} for _ in range(len(xy))]
     for (a, b), s in zip(pairs.tolist(), sign.tolist()):
         adjacent[a][b], adjacent[b][a] = int(s), -int(s)
@@ -158,7 +160,7 @@ def linked_components(image: np.ndarray, xy: np.ndarray, pairs: np.ndarray, sign
         done[list(cells)] = True
         if wrong:
             continue
-        cells = _outline_shown(image, xy, _confirmed(xy, cells, steps), steps, adjacent)
+        cells = _confirmed(xy, shape, cells, steps)
         if len(cells) < min_corners or not _smooth(xy, cells, steps):
             continue
         idx = np.fromiter(cells, np.int64, len(cells))
@@ -195,47 +197,36 @@ def _walk(xy: np.ndarray, adjacent: list[dict[int, int]], start: int
     return cells, steps
 
 
-def _confirmed(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]
-               ) -> dict[int, tuple[int, int]]:
-    """The corners held by two edges or more, or by one shorter than the edge continuing its line past
-    the corner it hangs on (the line's squares shrink towards it, as towards a fisheye's rim): a
-    longer one may span a corner the network missed. Dropped repeatedly, as corners go."""
+def _confirmed(xy: np.ndarray, shape: tuple[int, ...], cells: dict[int, tuple[int, int]],
+               steps: dict[tuple[int, int], tuple[int, int]]) -> dict[int, tuple[int, int]]:
+    """The corners held by two edges or more, dropped repeatedly as corners go: a corner hanging on
+    one edge has a step nothing else confirms (at a fisheye's rim it may span corners the network
+    missed, at an occluder end on its outline), unless the frame cuts its line (_cut_by_frame)."""
     kept = dict(cells)
     while True:
         edges: dict[int, list[int]] = {corner: [] for corner in kept}
         for a, b in steps:
             if a in kept and b in kept:
                 edges[a].append(b)
-        loose = [corner for corner, ends in edges.items() if len(ends) < 2 and not _shrinking(xy, corner, ends, steps)]
+        loose = [corner for corner, ends in edges.items()
+                 if len(ends) < 2 and not (len(ends) == 1 and _cut_by_frame(xy, shape, corner, ends[0], steps))]
         if not loose:
             return kept
         for corner in loose:
             del kept[corner]
 
 
-def _outline_shown(image: np.ndarray, xy: np.ndarray, cells: dict[int, tuple[int, int]],
-                   steps: dict[tuple[int, int], tuple[int, int]], adjacent: list[dict[int, int]]
-                   ) -> dict[int, tuple[int, int]]:
-    """The corners less those on the component's outline past which its line shows no edge: beyond
-    a board's last inner corner the line runs on between a dark and a light square of its outer
-    row, beyond a point of its outline (where its squares meet the background) between background
-    on both sides. Sampled at BEYOND_SAMPLES of the step to the corner inside, on the image."""
-    owner = {cell: corner for corner, cell in cells.items()}
-    ends, inside = [], []
-    for corner, (col, row) in cells.items():
-        for dc, dr in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-            behind = owner.get((col - dc, row - dr))
-            if (col + dc, row + dr) not in owner and behind is not None and (corner, behind) in steps:
-                ends.append(corner), inside.append(behind)
-    if not ends:
-        return cells
-    outward = xy[ends] - xy[inside]
-    t = np.concatenate([-BEYOND_SAMPLES, BEYOND_SAMPLES])  # inside (its edge, seen backwards) and past the corner
-    difference = _across(image, xy[ends], outward, t, np.full(len(t), BEYOND_OFFSET))
-    inner, beyond = np.abs(difference[:, : len(BEYOND_SAMPLES)]), np.abs(difference[:, len(BEYOND_SAMPLES) :])
-    shown = ~(median(beyond, axis=1) < BEYOND_FLAT * median(inner, axis=1))  # NaN (off the image): shown
-    dropped = {end for end, ok in zip(ends, shown.tolist()) if not ok}
-    return {corner: cell for corner, cell in cells.items() if corner not in dropped}
+def _cut_by_frame(xy: np.ndarray, shape: tuple[int, ...], corner: int, anchor: int,
+                  steps: dict[tuple[int, int], tuple[int, int]]) -> bool:
+    """Whether a corner hanging on one edge, from `anchor`, ends its line at the frame: half its step
+    past it lies off the image, and the step is shorter than the anchor's next along the same line
+    (the squares shrink towards it, as towards a fisheye's rim; a longer one may span a corner)."""
+    x, y = 1.5 * xy[corner] - 0.5 * xy[anchor]
+    if 0 <= x <= shape[1] - 1 and 0 <= y <= shape[0] - 1:
+        return False
+    dc, dr = steps[(anchor, corner)]
+    beyond = [b for (a, b), w in steps.items() if a == anchor and w == (-dc, -dr)]
+    return bool(beyond) and bool(vector_lengths(xy[corner] - xy[anchor]) < vector_lengths(xy[beyond[0]] - xy[anchor]))
 
 
 def _smooth(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]) -> bool:
@@ -253,16 +244,6 @@ def _smooth(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple
     u, v = xy[here] - xy[before], xy[after] - xy[here]
     cosine = (u * v).sum(1) / (vector_lengths(u) * vector_lengths(v))
     return bool(median(cosine) >= np.cos(np.radians(MAX_MEDIAN_TURN)))
-
-
-def _shrinking(xy: np.ndarray, corner: int, ends: list[int], steps: dict[tuple[int, int], tuple[int, int]]) -> bool:
-    """Whether a corner hanging on one edge lies nearer its anchor than the anchor's next corner on the same line."""
-    if len(ends) != 1:
-        return False
-    anchor = ends[0]
-    dc, dr = steps[(anchor, corner)]
-    beyond = [b for (a, b), w in steps.items() if a == anchor and w == (-dc, -dr)]
-    return bool(beyond) and float(np.hypot(*(xy[corner] - xy[anchor]))) < float(np.hypot(*(xy[beyond[0]] - xy[anchor])))
 
 
 def _disagreeing(cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]) -> set[int]:
