@@ -27,9 +27,8 @@ board's own edges link its corners instead:
    occluder's outline crosses the board's edges it may end on that outline (a false corner;
    fisheye close-ups, 80 renders: kept where shorter than the step continuing their line, 2
    boards wrongly indexed and 7 false corners; dropped but where the frame cuts their line, none
-   and 1). A component
-   whose rows and columns turn by more than MAX_MEDIAN_TURN at the median corner is no board
-   (_smooth): a lens bends a board's lines gradually, while links through clutter zigzag.
+   and 1). A component whose rows and columns turn by more than MAX_MEDIAN_TURN at the median
+   corner is no board (_smooth): a lens bends a board's lines gradually, links through clutter zigzag.
 
 The sign of an edge tells the colour of the squares beside it, so the board's light squares come
 with it, which ccdn.grid orients its indices by.
@@ -63,15 +62,12 @@ def edge_pairs(image: np.ndarray, xy: np.ndarray, neighbours: np.ndarray) -> tup
     of a checkerboard in `image` (float32, smoothed; module docstring, 1), with their signs (E,): +1
     where the side to the left of the step from the first to the second (x right, y down: its
     +90-degree normal) is the lighter."""
-    n = len(xy)
-    pairs = np.stack([np.repeat(np.arange(n), neighbours[:, :LINK_REACH].shape[1]),
-                      neighbours[:, :LINK_REACH].ravel()], 1)
-    pairs = pairs[pairs[:, 0] < pairs[:, 1]]
-    pairs = np.concatenate([pairs, _mutual_only(neighbours[:, :LINK_REACH], n)])
-    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
-    pairs = pairs[np.r_[True, (np.diff(pairs, axis=0) != 0).any(1)]] if len(pairs) else pairs
+    near = neighbours[:, :LINK_REACH]
+    pairs = np.sort(np.stack([np.repeat(np.arange(len(xy)), near.shape[1]), near.ravel()], 1), axis=1)
     if not len(pairs):
         return pairs, np.zeros(0)
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    pairs = pairs[np.r_[True, (np.diff(pairs, axis=0) != 0).any(1)]]  # each pair once, smaller corner first
     a = xy[pairs[:, 0]]
     step = xy[pairs[:, 1]] - a
     t = np.concatenate([EDGE_SAMPLES, END_SAMPLES])
@@ -98,12 +94,6 @@ def _across(image: np.ndarray, start: np.ndarray, step: np.ndarray, t: np.ndarra
     values = cv2.remap(image, points[..., 0], points[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                        borderValue=np.nan)
     return values[:, : len(t)] - values[:, len(t) :]
-
-
-def _mutual_only(neighbours: np.ndarray, n: int) -> np.ndarray:
-    """The pairs (a, b), a > b, where b is among a's neighbours: with the a < b ones, every pair once."""
-    pairs = np.stack([np.repeat(np.arange(n), neighbours.shape[1]), neighbours.ravel()], 1)
-    return pairs[pairs[:, 0] > pairs[:, 1]][:, ::-1]
 
 
 def kept_edges(xy: np.ndarray, pairs: np.ndarray, sign: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -226,12 +216,15 @@ def _cut_by_frame(xy: np.ndarray, shape: tuple[int, ...], corner: int, anchor: i
         return False
     dc, dr = steps[(anchor, corner)]
     beyond = [b for (a, b), w in steps.items() if a == anchor and w == (-dc, -dr)]
-    return bool(beyond) and bool(vector_lengths(xy[corner] - xy[anchor]) < vector_lengths(xy[beyond[0]] - xy[anchor]))
+    return bool(beyond) and bool(vector_lengths(xy[corner] - xy[anchor])
+                                 < vector_lengths(xy[beyond[0]] - xy[anchor]))
 
 
-def _smooth(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]) -> bool:
+def _smooth(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]
+            ) -> bool:
     """Whether the component's rows and columns run smoothly: the median turn between consecutive
-    edges along them at most MAX_MEDIAN_TURN degrees (a lens bends them gradually; clutter's links zigzag)."""
+    edges along them at most MAX_MEDIAN_TURN degrees (a lens bends them gradually; clutter's links
+    zigzag)."""
     owner = {cell: corner for corner, cell in cells.items()}
     before, here, after = [], [], []
     for corner, (col, row) in cells.items():
