@@ -62,23 +62,22 @@ def test_a_fisheye_close_up_growth_misses_is_linked_along_its_edges(seed):
     assert index_map(board, scene.grid[apart.argmin(1)]) is not None
 
 
-def test_a_corner_hanging_on_one_long_edge_is_dropped(monkeypatch):
-    """A corner at a fisheye close-up's rim linked by one edge that spans corners the network missed
-    (7190031: (28, 195) px, rows off) would be indexed wrongly; a corner held by one edge only is
-    dropped but where the frame cuts its line (ccdn.linked._cut_by_frame). The board the detector
-    returns there is indexed as the render's; keeping every such corner, it is not."""
-    scene = stress_scene("fisheye-close-up", 7_190_031)
-
-    def indexed_right(result) -> bool:
-        board = max(result.boards, key=len)
-        apart = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
-        return bool(index_map(board, scene.grid[apart.argmin(1)]) is not None)
-
+def test_a_corner_hanging_on_one_edge_is_dropped(monkeypatch):
+    """A corner linked by one edge only has a step nothing else confirms: where an occluder's outline
+    crosses a fisheye close-up's edges (7190078) such points link like corners; at a rim such a step
+    may span corners the network missed. They are dropped but where the frame cuts their line
+    (ccdn.linked._cut_by_frame): every corner the detector returns there is a true one, on a board
+    indexed as the render's; keeping every such corner, some are over 20 px from any."""
+    scene = stress_scene("fisheye-close-up", 7_190_078)
     result = ccdn.Detector(threads=2).detect(scene.image)
-    assert (nearest_distances(scene.corners, result.xy) < 1.0).all()  # every corner found is a true one
-    assert indexed_right(result)
+    assert len(result.xy) >= 0.9 * len(scene.corners)
+    assert (nearest_distances(scene.corners, result.xy) < 1.0).all()
+    for board in result.boards:
+        apart = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
+        assert index_map(board, scene.grid[apart.argmin(1)]) is not None
     monkeypatch.setattr(ccdn.linked, "_cut_by_frame", lambda *args: True)
-    assert not indexed_right(ccdn.Detector(threads=2).detect(scene.image))
+    kept = ccdn.Detector(threads=2).detect(scene.image)
+    assert (nearest_distances(scene.corners, kept.xy) > 20).any()
 
 
 def test_clutter_linked_into_a_zigzag_is_no_board():
@@ -90,3 +89,17 @@ def test_clutter_linked_into_a_zigzag_is_no_board():
     assert [len(board) for board in result.boards] == [len(scene.corners)]
     assert (nearest_distances(scene.corners, result.xy) < 1.0).all()
 
+
+
+def test_edges_along_a_fisheye_rims_thin_rows_link_at_the_near_offset(monkeypatch):
+    """At a fisheye close-up's rim the rows thin to a few px, thinner than 0.12 of the edges along
+    them; an edge also passes on samples 0.04 of its length off it (ccdn.linked.EDGE_OFFSETS): the
+    stress set's render 7190027 loses 1 of its 90 corners, 13 with the far samples alone."""
+    scene = stress_scene("fisheye-close-up", 7_190_027)
+
+    def found(result) -> int:
+        return int((nearest_distances(result.xy, scene.corners) < 1.0).sum())
+
+    assert found(ccdn.Detector(threads=2).detect(scene.image)) >= len(scene.corners) - 2
+    monkeypatch.setattr(ccdn.linked, "EDGE_OFFSETS", ccdn.linked.EDGE_OFFSETS[:1])
+    assert found(ccdn.Detector(threads=2).detect(scene.image)) <= len(scene.corners) - 10

@@ -11,8 +11,9 @@ board's own edges link its corners instead:
    EDGE_CONTRAST of the strongest edges' (the 90th percentile), and the same side darker near its
    ends (END_SAMPLES, closer to the segment): a diagonal of a square has the same grey on both
    sides, a segment over two squares changes side half-way (over two of a fisheye rim's, whose
-   sizes differ, near an end), and the samples (EDGE_OFFSET of its length off the segment) stay
-   clear of a curved edge's bulge.
+   sizes differ, near an end). The samples lie EDGE_OFFSETS of its length off the segment, a pair
+   passing at either: far enough off to clear a curved edge's bulge, or close enough to stay inside
+   the thin rows of a fisheye's rim.
 2. Around a checker corner the quadrants alternate, so the edges along one lattice line have the
    same sign (which side is darker, looking away from the corner) and the perpendicular ones the
    other. Each corner keeps, per sign, its shortest edge and the shortest pointing away from it
@@ -45,7 +46,8 @@ from .stats import median, quantile, vector_lengths
 
 LINK_REACH = 8  # nearest corners each is paired with: its 4 edge neighbours and 4 diagonal ones on a square lattice
 EDGE_SAMPLES = np.array([0.3, 0.4, 0.5, 0.6, 0.7])  # where along a pair's segment the two sides are sampled
-EDGE_OFFSET = 0.12  # of the segment's length: how far off it each side is sampled there ...
+EDGE_OFFSETS = (0.12, 0.04)  # of the segment's length: how far off it each side is sampled there, an edge at either
+# (a curved long edge bulges past the second, a fisheye rim's rows are thinner than the first; 0.25 too: nothing) ...
 END_SAMPLES = np.array([0.1, 0.9])  # ... and where, near its ends, only which side is darker counts ...
 END_OFFSET = 0.02  # ... sampled this far off it (0.04: the same corners on 40 fisheye close-ups) ...
 MIN_OFFSET = 1.5  # px: ... each at least
@@ -71,14 +73,17 @@ def edge_pairs(image: np.ndarray, xy: np.ndarray, neighbours: np.ndarray) -> tup
     a = xy[pairs[:, 0]]
     step = xy[pairs[:, 1]] - a
     t = np.concatenate([EDGE_SAMPLES, END_SAMPLES])
-    offset = np.where(np.arange(len(t)) < len(EDGE_SAMPLES), EDGE_OFFSET, END_OFFSET)
-    difference = _across(image, a, step, t, offset)
-    sign = np.sign(difference[:, len(EDGE_SAMPLES) // 2])
-    magnitude = np.abs(difference[:, : len(EDGE_SAMPLES)])
-    steady = (np.sign(difference) == sign[:, None]).all(1) & (magnitude.min(1) >= EDGE_EVEN * magnitude.max(1))
-    steady &= np.isfinite(difference).all(1) & (sign != 0)
+    steady, sign, strength = np.zeros(len(pairs), bool), np.zeros(len(pairs)), np.zeros(len(pairs))
+    for edge_offset in EDGE_OFFSETS:  # an edge at any of them: curved long ones far off, slivers' close to
+        offset = np.where(np.arange(len(t)) < len(EDGE_SAMPLES), edge_offset, END_OFFSET)
+        difference = _across(image, a, step, t, offset)
+        side = np.sign(difference[:, len(EDGE_SAMPLES) // 2])
+        magnitude = np.abs(difference[:, : len(EDGE_SAMPLES)])
+        ok = (np.sign(difference) == side[:, None]).all(1) & (magnitude.min(1) >= EDGE_EVEN * magnitude.max(1))
+        ok &= np.isfinite(difference).all(1) & (side != 0) & ~steady
+        sign[ok], strength[ok] = side[ok], np.sort(magnitude[ok], 1)[:, len(EDGE_SAMPLES) // 2]
+        steady |= ok
     if steady.any():
-        strength = np.sort(magnitude, 1)[:, len(EDGE_SAMPLES) // 2]
         steady &= strength >= EDGE_CONTRAST * quantile(strength[steady], 0.9)
     return pairs[steady], sign[steady]
 
