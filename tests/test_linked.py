@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import ccdn
+import ccdn.grid
 import ccdn.linked
 from ccdn.grid import LINK_BLUR, nearest_neighbours
 from ccdn.linked import edge_pairs
@@ -63,12 +64,12 @@ def test_a_fisheye_close_up_growth_misses_is_linked_along_its_edges(seed):
 
 
 def test_a_corner_hanging_on_one_edge_is_dropped(monkeypatch):
-    """A corner linked by one edge only has a step nothing else confirms: where an occluder's outline
-    crosses a fisheye close-up's edges (7190078) such points link like corners; at a rim such a step
-    may span corners the network missed. They are dropped but where the frame cuts their line
-    (ccdn.linked._cut_by_frame): every corner the detector returns there is a true one, on a board
-    indexed as the render's; keeping every such corner, some are over 20 px from any."""
-    scene = stress_scene("fisheye-close-up", 7_190_078)
+    """A corner linked by one edge only has a step nothing else confirms: where a fisheye close-up's
+    outer squares meet the background (7190014: (522, 14) px) its outline links like a corner; at a
+    rim such a step may span corners the network missed. They are dropped but where the frame cuts
+    their line (ccdn.linked._cut_by_frame): every corner the detector returns there is a true one,
+    on a board indexed as the render's; keeping every such corner, one is over 20 px from any."""
+    scene = stress_scene("fisheye-close-up", 7_190_014)
     result = ccdn.Detector(threads=2).detect(scene.image)
     assert len(result.xy) >= 0.9 * len(scene.corners)
     assert (nearest_distances(scene.corners, result.xy) < 1.0).all()
@@ -103,3 +104,34 @@ def test_edges_along_a_fisheye_rims_thin_rows_link_at_the_near_offset(monkeypatc
     assert found(ccdn.Detector(threads=2).detect(scene.image)) >= len(scene.corners) - 2
     monkeypatch.setattr(ccdn.linked, "EDGE_OFFSETS", ccdn.linked.EDGE_OFFSETS[:1])
     assert found(ccdn.Detector(threads=2).detect(scene.image)) <= len(scene.corners) - 10
+
+
+def test_a_fisheye_close_up_mostly_rim_is_told_by_its_largest_square(monkeypatch):
+    """A fisheye close-up whose few central squares span ~150 px and whose many rim squares a few
+    (the stress set's render 7190050: 103 corners): the longest tenth of its steps is short, so a
+    linked board is judged a close-up by its longest step (ccdn.grid._close_up with largest=1.0).
+    Nearly all its corners are found; judged by the longest tenth, none."""
+    scene = stress_scene("fisheye-close-up", 7_190_050)
+
+    def found() -> int:
+        return int((nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.0).sum())
+
+    assert found() >= len(scene.corners) - 5
+    tenth = ccdn.grid._close_up
+    monkeypatch.setattr(ccdn.grid, "_close_up", lambda board, shape, largest=0.9: tenth(board, shape, 0.9))
+    assert found() == 0
+
+
+def test_a_step_far_longer_than_the_one_before_it_is_no_edge_of_the_board(monkeypatch):
+    """Beside a board of ~10 px squares (the stress set's render 7090160: 49 corners) a corner
+    linked to a point 344 px across the frame, and that one step made the board a "close-up" that
+    took 4 false corners. A step over ccdn.linked.MAX_STEP_RATIO times the one before it on its line
+    (or under its inverse) drops its corners (a lens changes squares' size ~3x at most): the board
+    alone is found."""
+    scene = stress_scene("small-squares", 7_090_160)
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert [len(board) for board in result.boards] == [len(scene.corners)]
+    assert (nearest_distances(scene.corners, result.xy) < 1.0).all()
+    monkeypatch.setattr(ccdn.linked, "_steady_steps", lambda xy, cells, steps: cells)
+    unchecked = ccdn.Detector(threads=2).detect(scene.image)
+    assert (nearest_distances(scene.corners, unchecked.xy) > 20).any()

@@ -73,10 +73,12 @@ growth's predictions follow, and such boards were found in pieces or not at all 
 network scores their corners. Where at least MIN_CORNERS corners are in no board (or any is, and a
 board found is a close-up: growth found part of it), the corners are also linked along the board's
 edges (ccdn.linked: no prediction, each pair of neighbours tested for an edge between them), and
-each close-up (_close_up) so linked replaces the boards it shares corners with where it holds more
+each close-up so linked, judged by its longest step (_close_up: a fisheye close-up's many rim steps
+can keep its longest tenth short), replaces the boards it shares corners with where it holds more
 corners than they do together (stress fisheye close-up renders at 640x480, the first 40: 42.1 ->
-12.7 % missed, 80 more: 44.1 -> 15.0 %, boards wrongly indexed 2 -> 0, false positives 0 -> 2;
-close-ups, 80 more: 2.22 -> 1.53 %; ~1800 cached frames of every other kind bit for bit the same).
+7.6 % missed, 80 more: 44.1 -> 11.0 %, boards wrongly indexed 2 -> 0, false positives 0 -> 1;
+close-ups, the first 40: 1.9 -> 1.7 %, 80 more: 2.22 -> 0.97 %; ~1800 cached frames of every other
+kind bit for bit the same).
 
 Orientation (deterministic, in this order):
 1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
@@ -414,7 +416,7 @@ def _with_linked_close_ups(gray: np.ndarray, xy: np.ndarray, neighbours: np.ndar
     kept, changed = list(boards), False
     for idx, grid, light in linked_components(gray.shape, xy, pairs, sign, MIN_CORNERS):
         board = reoriented(indexed_board(idx, grid, xy[idx]), light, board_size)
-        if (board is None or min(board.cols, board.rows) < MIN_EXTENT or not _close_up(board, gray.shape)):
+        if board is None or min(board.cols, board.rows) < MIN_EXTENT or not _close_up(board, gray.shape, 1.0):
             continue
         mine = np.zeros(len(xy) + 1, bool)
         mine[idx] = True
@@ -424,11 +426,11 @@ def _with_linked_close_ups(gray: np.ndarray, xy: np.ndarray, neighbours: np.ndar
     return tuple(largest_first(kept)) if changed else boards
 
 
-def _close_up(board: Board, shape: tuple[int, ...]) -> bool:
-    """Whether a board's largest squares (the 90th percentile of its lattice steps' lengths) span more
-    than CLOSE_UP of the frame's shorter side: a close-up view (module docstring, Markers)."""
+def _close_up(board: Board, shape: tuple[int, ...], largest: float = 0.9) -> bool:
+    """Whether a board's largest squares (the `largest` quantile of its lattice steps' lengths) span
+    more than CLOSE_UP of the frame's shorter side: a close-up view (module docstring, Markers)."""
     lengths = vector_lengths(lattice_steps(board))
-    return quantile(lengths[np.isfinite(lengths)], 0.9) > CLOSE_UP * min(shape[:2])  # np.quantile imports numpy.ma
+    return quantile(lengths[np.isfinite(lengths)], largest) > CLOSE_UP * min(shape[:2])  # np.quantile imports numpy.ma
 
 
 def _marked(sampler: Sampler, board: Board) -> bool:

@@ -22,14 +22,16 @@ board's own edges link its corners instead:
    v, the edge back has -v, the other edge of the same sign +v, and the edges of the other sign
    the perpendicular steps, told apart by the side they leave on (a view never mirrors the board).
    A corner on an edge that disagrees with the walk's indices, or sharing its position with
-   another, is dropped and the walk repeats, at most MAX_DROPS times. So is a corner held by one
-   edge only, as long as any is (_confirmed), but where the frame cuts its line: at a fisheye's
-   rim such a step may span corners the network missed (a wrongly indexed board), where an
-   occluder's outline crosses the board's edges it may end on that outline (a false corner;
-   fisheye close-ups, 80 renders: kept where shorter than the step continuing their line, 2
-   boards wrongly indexed and 7 false corners; dropped but where the frame cuts their line, none
-   and 1). A component whose rows and columns turn by more than MAX_MEDIAN_TURN at the median
-   corner is no board (_smooth): a lens bends a board's lines gradually, links through clutter zigzag.
+   another, is dropped and the walk repeats, at most MAX_DROPS times. So are both ends of a step
+   over MAX_STEP_RATIO times longer or shorter than the one before it on its line (_steady_steps:
+   a link across the frame made a small board a "close-up"), and a corner held by one edge only,
+   as long as any is (_confirmed), but where the frame cuts its line: at a fisheye's rim such a
+   step may span corners the network missed (a wrongly indexed board), where an occluder's
+   outline crosses the board's edges it may end on that outline (a false corner; fisheye
+   close-ups, 80 renders: kept where shorter than the step continuing their line, 2 boards
+   wrongly indexed and 7 false corners; dropped but where the frame cuts their line, none and 1).
+   A component whose rows and columns turn by more than MAX_MEDIAN_TURN at the median corner is
+   no board (_smooth): a lens bends a board's lines gradually, links through clutter zigzag.
 
 The sign of an edge tells the colour of the squares beside it, so the board's light squares come
 with it, which ccdn.grid orients its indices by.
@@ -56,6 +58,8 @@ EDGE_CONTRAST = 0.25  # an edge's median difference across it, of the strongest 
 OPPOSITE = -0.3  # cosine: a corner's second edge of a sign points away from its first
 MAX_MEDIAN_TURN = 15.0  # degrees: a component's rows and columns turn less at the median corner (_smooth). Fisheye
 # close-ups: 3-10; clutter linked beside a motion-blurred board (fresh render 7030523): 25-51
+MAX_STEP_RATIO = 8.0  # a step this many times longer or shorter than the one before it on its line drops its
+# corners (_steady_steps; fisheye close-ups: up to ~3.3)
 MAX_DROPS = 10  # corners dropped for disagreeing with a walk before the component is given up
 
 
@@ -155,7 +159,7 @@ def linked_components(shape: tuple[int, ...], xy: np.ndarray, pairs: np.ndarray,
         done[list(cells)] = True
         if wrong:
             continue
-        cells = _confirmed(xy, shape, cells, steps)
+        cells = _confirmed(xy, shape, _steady_steps(xy, cells, steps), steps)
         if len(cells) < min_corners or not _smooth(xy, cells, steps):
             continue
         idx = np.fromiter(cells, np.int64, len(cells))
@@ -190,6 +194,22 @@ def _walk(xy: np.ndarray, adjacent: list[dict[int, int]], start: int
                 cells[b] = (cells[a][0] + w[0], cells[a][1] + w[1])
                 queue.append((b, a, (-w[0], -w[1])))
     return cells, steps
+
+
+def _steady_steps(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]
+                  ) -> dict[int, tuple[int, int]]:
+    """The corners less both ends of each step over MAX_STEP_RATIO times the one before it on its line,
+    or under 1 / MAX_STEP_RATIO of it: a lens changes the squares' size by ~3x from one to the next at
+    most, while a corner beside a board's outline may link to a point across the frame."""
+    owner = {cell: corner for corner, cell in cells.items()}
+    dropped = set()
+    for (a, b), (dc, dr) in steps.items():
+        before = owner.get((cells[a][0] - dc, cells[a][1] - dr))
+        if before is not None and (before, a) in steps:
+            ratio = float(vector_lengths(xy[b] - xy[a]) / vector_lengths(xy[a] - xy[before]))
+            if not 1 / MAX_STEP_RATIO <= ratio <= MAX_STEP_RATIO:
+                dropped.update((a, b))
+    return {corner: cell for corner, cell in cells.items() if corner not in dropped}
 
 
 def _confirmed(xy: np.ndarray, shape: tuple[int, ...], cells: dict[int, tuple[int, int]],
