@@ -76,7 +76,7 @@ edges (ccdn.linked: no prediction, each pair of neighbours tested for an edge be
 each close-up so linked, judged by its longest step (_close_up: a fisheye close-up's many rim steps
 can keep its longest tenth short), replaces the boards it shares corners with where it holds more
 corners than they do together (stress fisheye close-up renders at 640x480, the first 40: 42.1 ->
-7.6 % missed, 80 more: 44.1 -> 11.0 %, boards wrongly indexed 2 -> 0, false positives 0 -> 1;
+7.6 % missed, 80 more: 44.1 -> 8.5 %, boards wrongly indexed 2 -> 0, false positives 0 -> 1;
 close-ups, the first 40: 1.9 -> 1.7 %, 80 more: 2.22 -> 0.97 %; ~1800 cached frames of every other
 kind bit for bit the same).
 
