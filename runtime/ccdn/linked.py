@@ -70,10 +70,11 @@ def edge_pairs(image: np.ndarray, xy: np.ndarray, neighbours: np.ndarray) -> tup
     +90-degree normal) is the lighter."""
     near = neighbours[:, :LINK_REACH]
     pairs = np.sort(np.stack([np.repeat(np.arange(len(xy)), near.shape[1]), near.ravel()], 1), axis=1)
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    pairs = pairs[np.r_[True, (np.diff(pairs, axis=0) != 0).any(1)][: len(pairs)]]  # each once, smaller first
+    pairs = pairs[(xy[pairs[:, 0]] != xy[pairs[:, 1]]).any(1)]  # two points at one place have no segment
     if not len(pairs):
         return pairs, np.zeros(0)
-    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
-    pairs = pairs[np.r_[True, (np.diff(pairs, axis=0) != 0).any(1)]]  # each pair once, smaller corner first
     a = xy[pairs[:, 0]]
     step = xy[pairs[:, 1]] - a
     t = np.concatenate([EDGE_SAMPLES, END_SAMPLES])
