@@ -418,7 +418,7 @@ def _with_linked_close_ups(gray: np.ndarray, xy: np.ndarray, neighbours: np.ndar
         board = reoriented(indexed_board(idx, grid, xy[idx]), light, board_size)
         if board is None or min(board.cols, board.rows) < MIN_EXTENT or not _close_up(board, gray.shape, 1.0):
             continue
-        mine = np.zeros(len(xy) + 1, bool)
+        mine = np.zeros(len(xy) + 1, bool)  # a board's completed corners (index >= len(xy)) fall on the last slot
         mine[idx] = True
         overlapping = [b for b in kept if mine[np.minimum(b.corner_index, len(xy))].any()]
         if len(board) > sum(map(len, overlapping)):
