@@ -17,8 +17,9 @@ A render joins its subset only if it shows that condition and no other (`shows_c
 wholly in frame (its outer squares too, as OpenCV needs) with every inner corner countable; except that
 two boards need only their inner corners in frame and may overlap, occluded boards must have a hidden
 corner, and partial boards and (fisheye) close-ups a corner outside the frame. No two corners may be
-closer than 3 px (too close to tell apart). Subset k tries seeds 7_000_000 + 10_000 k + i, i = 0, 1, ... in order (disjoint from
-every training and accuracy seed); adding a subset at the end keeps the others' images.
+closer than 3 px (too close to tell apart). Subset k tries seeds 7_000_000 + 10_000 k + i, i = 0, 1,
+... in order (disjoint from every training and accuracy seed); adding a subset at the end keeps the
+others' images.
 
 All detectors (benchmarks/peers.py) run on the same images in one run. Metrics are the paper's
 (benchmarks/accuracy.py, 5 px radius), with the renderer's ignored corners (occluded, at the border)

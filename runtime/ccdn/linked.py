@@ -79,15 +79,19 @@ def edge_pairs(image: np.ndarray, xy: np.ndarray, neighbours: np.ndarray) -> tup
     step = xy[pairs[:, 1]] - a
     t = np.concatenate([EDGE_SAMPLES, END_SAMPLES])
     steady, sign, strength = np.zeros(len(pairs), bool), np.zeros(len(pairs)), np.zeros(len(pairs))
-    for edge_offset in EDGE_OFFSETS:  # an edge at any of them: curved long ones far off, slivers' close to
+    for edge_offset in EDGE_OFFSETS:  # an edge at any of them (curved long ones far off, slivers' close to);
+        todo = np.flatnonzero(~steady)  # each tried on the pairs the ones before did not pass
+        if not len(todo):
+            break
         offset = np.where(np.arange(len(t)) < len(EDGE_SAMPLES), edge_offset, END_OFFSET)
-        difference = _across(image, a, step, t, offset)
+        difference = _across(image, a[todo], step[todo], t, offset)
         side = np.sign(difference[:, len(EDGE_SAMPLES) // 2])
         magnitude = np.abs(difference[:, : len(EDGE_SAMPLES)])
         ok = (np.sign(difference) == side[:, None]).all(1) & (magnitude.min(1) >= EDGE_EVEN * magnitude.max(1))
-        ok &= np.isfinite(difference).all(1) & (side != 0) & ~steady
-        sign[ok], strength[ok] = side[ok], np.sort(magnitude[ok], 1)[:, len(EDGE_SAMPLES) // 2]
-        steady |= ok
+        ok &= np.isfinite(difference).all(1) & (side != 0)
+        passed = todo[ok]
+        sign[passed], strength[passed] = side[ok], np.sort(magnitude[ok], 1)[:, len(EDGE_SAMPLES) // 2]
+        steady[passed] = True
     if steady.any():
         steady &= strength >= EDGE_CONTRAST * quantile(strength[steady], 0.9)
     return pairs[steady], sign[steady]
@@ -158,7 +162,7 @@ def linked_components(shape: tuple[int, ...], xy: np.ndarray, pairs: np.ndarray,
             if not adjacent[start]:
                 break
         done[list(cells)] = True
-        if wrong:
+        if wrong or len(cells) < min_corners:  # the checks below only drop corners
             continue
         cells = _confirmed(xy, shape, _steady_steps(xy, cells, steps), steps)
         if len(cells) < min_corners or not _smooth(xy, cells, steps):
@@ -199,18 +203,29 @@ def _walk(xy: np.ndarray, adjacent: list[dict[int, int]], start: int
 
 def _steady_steps(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]
                   ) -> dict[int, tuple[int, int]]:
-    """The corners less both ends of each step over MAX_STEP_RATIO times the one before it on its line,
-    or under 1 / MAX_STEP_RATIO of it: a lens changes the squares' size by ~3x from one to the next at
+    """The corners less those of each two consecutive steps along a line where one is over
+    MAX_STEP_RATIO times the other: a lens changes the squares' size by ~3x from one to the next at
     most, while a corner beside a board's outline may link to a point across the frame."""
-    owner = {cell: corner for corner, cell in cells.items()}
-    dropped = set()
-    for (a, b), (dc, dr) in steps.items():
-        before = owner.get((cells[a][0] - dc, cells[a][1] - dr))
-        if before is not None and (before, a) in steps:
-            ratio = float(vector_lengths(xy[b] - xy[a]) / vector_lengths(xy[a] - xy[before]))
-            if not 1 / MAX_STEP_RATIO <= ratio <= MAX_STEP_RATIO:
-                dropped.update((a, b))
+    before, here, after = _line_triples(cells, steps)
+    ratio = vector_lengths(xy[after] - xy[here]) / vector_lengths(xy[here] - xy[before])
+    jump = ~((ratio >= 1 / MAX_STEP_RATIO) & (ratio <= MAX_STEP_RATIO))
+    dropped = set(np.concatenate([before[jump], here[jump], after[jump]]).tolist())
     return {corner: cell for corner, cell in cells.items() if corner not in dropped}
+
+
+def _line_triples(cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each corner with edges to its neighbours on both sides along a row or column: (before, here,
+    after) corner indices (K,) each, before at (col - 1) or (row - 1)."""
+    owner = {cell: corner for corner, cell in cells.items()}
+    triples = []
+    for corner, (col, row) in cells.items():
+        for dc, dr in ((1, 0), (0, 1)):
+            a, b = owner.get((col - dc, row - dr)), owner.get((col + dc, row + dr))
+            if a is not None and b is not None and (a, corner) in steps and (corner, b) in steps:
+                triples.append((a, corner, b))
+    before, here, after = np.array(triples, np.int64).reshape(-1, 3).T
+    return before, here, after
 
 
 def _confirmed(xy: np.ndarray, shape: tuple[int, ...], cells: dict[int, tuple[int, int]],
@@ -218,32 +233,37 @@ def _confirmed(xy: np.ndarray, shape: tuple[int, ...], cells: dict[int, tuple[in
     """The corners held by two edges or more, dropped repeatedly as corners go: a corner hanging on
     one edge has a step nothing else confirms (at a fisheye's rim it may span corners the network
     missed, at an occluder end on its outline), unless the frame cuts its line (_cut_by_frame)."""
+    next_along = {(a, step): b for (a, b), step in steps.items()}  # (corner, lattice step) -> the corner there
     kept = dict(cells)
     while True:
         edges: dict[int, list[int]] = {corner: [] for corner in kept}
         for a, b in steps:
             if a in kept and b in kept:
                 edges[a].append(b)
-        loose = [corner for corner, ends in edges.items()
-                 if len(ends) < 2 and not (len(ends) == 1 and _cut_by_frame(xy, shape, corner, ends[0], steps))]
+        loose = []
+        for corner, ends in edges.items():
+            if len(ends) == 1:
+                dc, dr = steps[(ends[0], corner)]
+                if _cut_by_frame(xy, shape, corner, ends[0], next_along.get((ends[0], (-dc, -dr)))):
+                    continue
+            if len(ends) < 2:
+                loose.append(corner)
         if not loose:
             return kept
         for corner in loose:
             del kept[corner]
 
 
-def _cut_by_frame(xy: np.ndarray, shape: tuple[int, ...], corner: int, anchor: int,
-                  steps: dict[tuple[int, int], tuple[int, int]]) -> bool:
+def _cut_by_frame(xy: np.ndarray, shape: tuple[int, ...], corner: int, anchor: int, beyond: int | None) -> bool:
     """Whether a corner hanging on one edge, from `anchor`, ends its line at the frame: half its step
-    past it lies off the image, and the step is shorter than the anchor's next along the same line
-    (the squares shrink towards it, as towards a fisheye's rim; a longer one may span a corner)."""
+    past it lies off the image, and the step is shorter than the one from the anchor to `beyond`,
+    its next corner the other way along the line (the squares shrink towards the corner, as towards
+    a fisheye's rim; a longer step may span a corner)."""
     x, y = 1.5 * xy[corner] - 0.5 * xy[anchor]
     if 0 <= x <= shape[1] - 1 and 0 <= y <= shape[0] - 1:
         return False
-    dc, dr = steps[(anchor, corner)]
-    beyond = [b for (a, b), w in steps.items() if a == anchor and w == (-dc, -dr)]
-    return bool(beyond) and bool(vector_lengths(xy[corner] - xy[anchor])
-                                 < vector_lengths(xy[beyond[0]] - xy[anchor]))
+    return beyond is not None and bool(vector_lengths(xy[corner] - xy[anchor])
+                                       < vector_lengths(xy[beyond] - xy[anchor]))
 
 
 def _smooth(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple[int, int], tuple[int, int]]
@@ -251,14 +271,8 @@ def _smooth(xy: np.ndarray, cells: dict[int, tuple[int, int]], steps: dict[tuple
     """Whether the component's rows and columns run smoothly: the median turn between consecutive
     edges along them at most MAX_MEDIAN_TURN degrees (a lens bends them gradually; clutter's links
     zigzag)."""
-    owner = {cell: corner for corner, cell in cells.items()}
-    before, here, after = [], [], []
-    for corner, (col, row) in cells.items():
-        for dc, dr in ((1, 0), (0, 1)):
-            a, b = owner.get((col - dc, row - dr)), owner.get((col + dc, row + dr))
-            if a is not None and b is not None and (a, corner) in steps and (corner, b) in steps:
-                before.append(a), here.append(corner), after.append(b)
-    if not here:
+    before, here, after = _line_triples(cells, steps)
+    if not len(here):
         return False
     u, v = xy[here] - xy[before], xy[after] - xy[here]
     cosine = (u * v).sum(1) / (vector_lengths(u) * vector_lengths(v))
