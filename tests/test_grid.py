@@ -247,6 +247,46 @@ def test_the_strip_of_a_board_another_hides_is_a_board(seed, strip, monkeypatch)
     assert len(ccdn.Detector(threads=2).detect(scene.image).boards) == 1
 
 
+def test_a_piece_of_a_board_behind_another_is_a_board_beside_it(monkeypatch):
+    """In the two-boards render 7121839 (a fresh seed) what shows of the back board is a piece of 2 x 3
+    corners beside the front board's edge: with boards of 8 corners at least it was lost. A board of
+    ccdn.grid.MIN_PIECE corners where the search also finds one of 8: indexed as it is, each corner
+    within 0.1 px of its label."""
+    import ccdn
+    scene = stress_scene("two-boards", 7_121_839)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [27, 6]
+    assert (boards[1].rows, boards[1].cols) == (2, 3) and true_board(boards[1], scene, 0.1)
+    monkeypatch.setattr("ccdn.grid.MIN_PIECE", 8)
+    assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [27]
+
+
+def test_a_piece_holds_no_point_off_the_lattice_of_its_others(monkeypatch):
+    """In the two-boards render 7120386 a piece of 2 x 3 corners of the back board took a point where
+    the front board's outline crosses a hidden corner's squares, 2.3 px off it (ccdn.lattice.
+    each_where_the_others_put_it: 0.11 of a step from where the piece's 5 other corners put it, a
+    true piece's corners 0.002): no such piece, and no point of any board over 0.3 px off its label."""
+    import ccdn
+    scene = stress_scene("two-boards", 7_120_386)
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert [len(board) for board in result.boards] == [54]
+    assert nearest_distances(scene.corners, result.xy).max() < 0.3  # each corner found, to its label
+    monkeypatch.setattr("ccdn.grid.each_where_the_others_put_it", lambda grid, points: True)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [54, 6] and not true_board(boards[1], scene, 1.0)
+
+
+def test_a_piece_alone_is_no_board(monkeypatch):
+    """On the extreme-pose render 7100021 the full frame's search finds a piece of 6 corners of the
+    board and no board of 8; kept, it took the place of the look at the steep board's clusters
+    (ccdn.magnify), whose board holds all 55 corners, with a magnified look at itself that found 54."""
+    import ccdn
+    scene = stress_scene("extreme-pose", 7_100_021)
+    assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [55]
+    monkeypatch.setattr("ccdn.grid.MIN_CORNERS", 6)  # a board of 6 counts as one of 8: a piece alone is kept
+    assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [54]
+
+
 def test_a_board_behind_another_seeds_where_two_corners_of_each_square_are_covered(monkeypatch):
     """What shows of the back board in the stress set's two-boards render 7120041 is an L: the front
     board's outline crosses the quads of two corners of every square of it left, and seed squares

@@ -24,11 +24,13 @@ ccdn.completion) and is cleaned up (ccdn.cleanup: sharp turns, lone points on it
 a seam between two boards grown into one). A grid of at least 2 x 3 positions and 8 corners is a
 board (two rows or columns: the strip of a board that another hides; 3 x 3 before, which lost two
 such strips of 9 and 18 corners in the four stress samples' 1440 renders and changed nothing else
-there, on real-dev or its perturbed photos); its corners are removed and the search repeats for
-further boards. Once no seed is left, each board takes its pieces beyond a gap (another board or an
-occluder in front of it) among the corners no board holds (ccdn.bridging). Corners in no board are
-dropped, and no corner closer than EDGE_MARGIN to the frame's edge joins one (where the frame cuts a
-board's outline, its one visible quad pair alternates like a corner's).
+there, on real-dev or its perturbed photos), or of MIN_PIECE (6) corners where the search also
+finds a board of 8 (a piece of a board behind another: on its own too small to tell from clutter)
+and each of them lies where the lattice of the others puts it (ccdn.lattice); its corners are removed and the search repeats for further boards. Once no seed is left, each board
+takes its pieces beyond a gap (another board or an occluder in front of it) among the corners no
+board holds (ccdn.bridging). Corners in no board are dropped, and no corner closer than EDGE_MARGIN
+to the frame's edge joins one (where the frame cuts a board's outline, its one visible quad pair
+alternates like a corner's).
 
 Shade (complete=True): a board whose lightest quads differ across it by more than SHADE_SPREAD
 (ccdn.shade.light_spread: a shadow over part of it) is searched for again, from the same corners,
@@ -108,13 +110,15 @@ import numpy as np
 from .checker import Sampler, quad_levels, x_like
 from .edges import lattice_steps, median_step
 from .growth import Grower
-from .lattice import SEED_AXES, SEED_REACH_UNIFORM, distances, held_on_two_sides, inside_margin
+from .lattice import (SEED_AXES, SEED_REACH_UNIFORM, distances, each_where_the_others_put_it, held_on_two_sides,
+                      inside_margin)
 from .linked import edge_pairs, kept_edges, linked_components
 from .seeds import SEED_CHUNK, SEED_REACH, NearQuads, seed_squares
 from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from .stats import median, quantile, vector_lengths
 
 MIN_CORNERS = 8
+MIN_PIECE = 6  # corners a board may hold where the search also finds one of MIN_CORNERS (module docstring)
 MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board behind another (module docstring)
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 BEHIND_UNEVEN = 2  # corners of a seed square with non-uniform quads in the last round (module docstring)
@@ -239,7 +243,7 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     """The board grown from a verified seed square (seed_squares' found, corners, sign, contrast) over
     the free corners (gray given: with completion; `added`: corners earlier boards completed; gaps: each
     corner's distance to its nearest; score: their network scores), pruned, vouched for and trimmed;
-    None when it is smaller than MIN_CORNERS or MIN_EXTENT."""
+    None when it is smaller than MIN_PIECE or MIN_EXTENT."""
     occupied = np.concatenate([xy[~free], np.reshape(added, (-1, 2))])
     grower = Grower(xy, free, sampler, gaps, gray, len(xy) + len(added), occupied, score)
     grower.seed(square[1], float(square[2]), float(square[3]))
@@ -250,7 +254,10 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     grower.trim_outline()
     grower.split_at_bridge()
     grid, idx = grower.cells()
-    if len(idx) < MIN_CORNERS or (grid.max(0) - grid.min(0) + 1).min() < MIN_EXTENT:
+    if len(idx) < MIN_PIECE or (grid.max(0) - grid.min(0) + 1).min() < MIN_EXTENT:
+        return None
+    if len(idx) < MIN_CORNERS and not each_where_the_others_put_it(grid[:, ::-1].astype(np.float64),
+                                                                    grower.points(idx)):
         return None
     return grower
 
@@ -541,4 +548,6 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
         oriented = _orient(grid, grower.points(idx), grower.sign, board_size, allow_partial)
         if oriented is not None:
             found.append(indexed_board(idx, oriented, points[idx]))
+    if not any(len(board) >= MIN_CORNERS for board in found):  # pieces only beside a board (module docstring)
+        found = []
     return tuple(largest_first(found))

@@ -51,6 +51,19 @@ def looks_flat(homography: np.ndarray, grid: np.ndarray, points: np.ndarray) -> 
     return not (vector_lengths(fitted - points) > FLAT_RESIDUAL * shorter_length(u, v)).any()
 
 
+def each_where_the_others_put_it(grid: np.ndarray, points: np.ndarray) -> bool:
+    """Whether each of the points (K, 2) at grid points (col, row) (K, 2) lies where a homography
+    through the others puts it (looks_flat): a piece of a board too small for its lattice to outvote
+    one wrong corner holds none (ccdn.grid, MIN_PIECE: a point where another board's outline crosses
+    a hidden corner's squares lay 0.11 of a step off, the true corners of such pieces 0.002)."""
+    for k in range(len(grid)):
+        others = np.arange(len(grid)) != k
+        homography, _ = cv2.findHomography(grid[others], points[others], 0)
+        if homography is None or not looks_flat(homography, grid[k : k + 1], points[k : k + 1]):
+            return False
+    return True
+
+
 def first_of_each_cell(cells: np.ndarray) -> np.ndarray:
     """Indices of the first occurrence of each distinct grid cell in cells (K, 2) int (row, col), in
     (row, col) order: np.unique(axis=0, return_index=True) on one integer key per cell, without its
