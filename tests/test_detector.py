@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import ccdn
-from conftest import index_map, nearest_distances, no_growth_into_shade, no_holes, stress_scene
+from conftest import index_map, nearest_distances, no_growth_into_shade, no_holes, stress_scene, true_board
 
 
 def test_runtime_never_imports_torch_or_training_code():
@@ -421,6 +421,19 @@ def test_a_close_up_whose_squares_change_size_from_one_to_the_next_is_found():
     result = ccdn.Detector(threads=2).detect(scene.image)
     assert [len(board) for board in result.boards] == [len(truth)]
     assert (nearest_distances(result.xy, truth) < 0.3).all()
+
+
+def test_a_close_up_of_six_corners_is_a_board_of_its_own(monkeypatch):
+    """A close-up with 2 x 3 corners in view (the stress set's close-up render 7180035: squares of
+    100-200 px) is a piece of a board alone, which is no board unless it is a close-up
+    (ccdn.grid.MIN_PIECE, _close_up): its squares are too large for clutter to pass for them. Found,
+    indexed as it is, each corner within 0.1 px of its label; a piece that is no close-up stays out
+    (tests/test_grid.py)."""
+    scene = stress_scene("close-up", 7_180_035)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [6] and true_board(boards[0], scene, 0.1)
+    monkeypatch.setattr("ccdn.grid.CLOSE_UP", 0.5)  # no square spans half the frame: no close-up
+    assert ccdn.Detector(threads=2).detect(scene.image).boards == ()
 
 
 def test_a_fisheye_close_up_is_told_by_its_largest_squares():

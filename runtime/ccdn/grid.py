@@ -26,11 +26,12 @@ board (two rows or columns: the strip of a board that another hides; 3 x 3 befor
 such strips of 9 and 18 corners in the four stress samples' 1440 renders and changed nothing else
 there, on real-dev or its perturbed photos), or of MIN_PIECE (6) corners where the search also
 finds a board of 8 (a piece of a board behind another: on its own too small to tell from clutter)
-and each of them lies where the lattice of the others puts it (ccdn.lattice); its corners are removed and the search repeats for further boards. Once no seed is left, each board
-takes its pieces beyond a gap (another board or an occluder in front of it) among the corners no
-board holds (ccdn.bridging). Corners in no board are dropped, and no corner closer than EDGE_MARGIN
-to the frame's edge joins one (where the frame cuts a board's outline, its one visible quad pair
-alternates like a corner's).
+or where it is a close-up (_close_up: squares too large for clutter to pass for), and each of its
+corners lies where the lattice of the others puts it (ccdn.lattice); its corners are removed and
+the search repeats for further boards. Once no seed is left, each board takes its pieces beyond a
+gap (another board or an occluder in front of it) among the corners no board holds (ccdn.bridging).
+Corners in no board are dropped, and no corner closer than EDGE_MARGIN to the frame's edge joins
+one (where the frame cuts a board's outline, its one visible quad pair alternates like a corner's).
 
 Shade (complete=True): a board whose lightest quads differ across it by more than SHADE_SPREAD
 (ccdn.shade.light_spread: a shadow over part of it) is searched for again, from the same corners,
@@ -118,7 +119,7 @@ from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_
 from .stats import median, quantile, vector_lengths
 
 MIN_CORNERS = 8
-MIN_PIECE = 6  # corners a board may hold where the search also finds one of MIN_CORNERS (module docstring)
+MIN_PIECE = 6  # corners a board may hold beside one of MIN_CORNERS or as a close-up (module docstring)
 MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board behind another (module docstring)
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
 BEHIND_UNEVEN = 2  # corners of a seed square with non-uniform quads in the last round (module docstring)
@@ -548,6 +549,6 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
         oriented = _orient(grid, grower.points(idx), grower.sign, board_size, allow_partial)
         if oriented is not None:
             found.append(indexed_board(idx, oriented, points[idx]))
-    if not any(len(board) >= MIN_CORNERS for board in found):  # pieces only beside a board (module docstring)
-        found = []
+    if not any(len(board) >= MIN_CORNERS for board in found):  # pieces beside a board or close-ups (module docstring)
+        found = [board for board in found if _close_up(board, gray.shape)]
     return tuple(largest_first(found))
