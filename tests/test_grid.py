@@ -276,6 +276,19 @@ def test_a_piece_holds_no_point_off_the_lattice_of_its_others(monkeypatch):
     assert [len(board) for board in boards] == [54, 6] and not true_board(boards[1], scene, 1.0)
 
 
+def test_a_piece_is_grown_once_the_boards_are_found(monkeypatch):
+    """In the two-boards render 7122551 (a fresh seed) a seed square of the back board, ranked first,
+    grows into a piece of 6 corners that the front board cuts off; taken during the search, it kept
+    corners the back board, grown later, reaches them through: that board lost 12. Grown once the
+    boards are found (and bridged), its corners are the back board's: 81 of them."""
+    import ccdn
+    scene = stress_scene("two-boards", 7_122_551)
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert sorted(len(board) for board in result.boards) == [77, 81]
+    monkeypatch.setattr("ccdn.grid.MIN_CORNERS", 6)  # a piece is a board: taken during the search
+    assert sorted(len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards) == [6, 69, 77]
+
+
 def test_a_piece_alone_is_no_board(monkeypatch):
     """On the extreme-pose render 7100021 the full frame's search finds a piece of 6 corners of the
     board and no board of 8; kept, it took the place of the look at the steep board's clusters

@@ -29,7 +29,10 @@ finds a board of 8 (a piece of a board behind another: on its own too small to t
 or where it is a close-up (_close_up: squares too large for clutter to pass for), and each of its
 corners lies where the lattice of the others puts it (ccdn.lattice); its corners are removed and
 the search repeats for further boards. Once no seed is left, each board takes its pieces beyond a
-gap (another board or an occluder in front of it) among the corners no board holds (ccdn.bridging).
+gap (another board or an occluder in front of it) among the corners no board holds (ccdn.bridging),
+and only then are the pieces grown again from their seed squares, where these are still free (grown
+during the search, a piece of the board behind another kept 6 corners that board, grown later,
+would have reached and gone on from: a fresh two-boards render, 7122551, lost 6 corners).
 Corners in no board are dropped, and no corner closer than EDGE_MARGIN to the frame's edge joins
 one (where the frame cuts a board's outline, its one visible quad pair alternates like a corner's).
 
@@ -263,6 +266,18 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     return grower
 
 
+def _take_board(grower: Grower, xy: np.ndarray, free: np.ndarray, added: list, growers: list[Grower]) -> None:
+    """The grown board's corners taken from `free` (and the free ones at its completed corners:
+    _cover_completed); the board joins `growers`, and its completed corners `added`, unless it is a
+    grid of lines (ccdn.cleanup), which still owns its corners, as a board of another size does."""
+    idx = grower.cells()[1]
+    free[idx[idx < len(xy)]] = False
+    _cover_completed(free, xy, grower.points(idx[idx >= len(xy)]))
+    if not grower.line_grid():
+        added.extend(grower.added)
+        growers.append(grower)
+
+
 def _cover_completed(free: np.ndarray, xy: np.ndarray, completed: np.ndarray) -> None:
     """Mark the free corners within SAME_CORNER_PX of a board's `completed` corners (its fits from the
     image) as taken: the same corners, which growth's test refused (on a marked board, the markers'
@@ -376,7 +391,7 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     if len(score) != len(xy):
         raise ValueError(f"xy has {len(xy)} rows but score has {len(score)}")
     n = len(xy)
-    if n < MIN_CORNERS:
+    if n < MIN_PIECE:
         return ()
     neighbours, dist2 = nearest_neighbours(xy, SEED_REACH)
     gaps = np.sqrt(dist2[:, 0])
@@ -496,6 +511,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     free = inside_margin(xy, gray.shape)  # corners at the frame's edge are in no board
     growers: list[Grower] = []
     added: list[np.ndarray] = []
+    pieces: list[list] = []  # the seed squares of boards under MIN_CORNERS
     # strict seed squares first; squares with uneven corners only among the seeds left when they are done
     # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less);
     # squares with BEHIND_UNEVEN uneven corners last, once a board is found (module docstring)
@@ -530,18 +546,19 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
                       if square[0] else None)
             if grower is None:
                 continue
-            idx = grower.cells()[1]
+            if len(grower.cells()[1]) < MIN_CORNERS:  # a piece: grown again once the boards are done
+                pieces.append(square)
+                continue
             grown = True
             for parts in sampled.values():  # sampled while the board's corners were free: `free` changes only here
                 parts.clear()
-            free[idx[idx < n]] = False  # a board of another size still owns its corners, so does a grid of lines
-            _cover_completed(free, xy, grower.points(idx[idx >= n]))
+            _take_board(grower, xy, free, added, growers)
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
-            if grower.line_grid():  # a grid of lines: no board (ccdn.cleanup)
-                continue
-            added.extend(grower.added)
-            growers.append(grower)
     _bridge_leftovers(growers, free)
+    for square in pieces:  # pieces last: grown first, one kept corners a board grows through (module docstring)
+        if free[square[1]].all() and (grower := _grow_board(xy, free, sampler, gray if complete else None, added,
+                                                            square, gaps, score)) is not None:
+            _take_board(grower, xy, free, added, growers)
     points = np.concatenate([xy, np.reshape(added, (-1, 2))])
     found = []
     for grower in growers:
