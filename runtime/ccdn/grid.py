@@ -504,7 +504,6 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     neighbours (nearest_neighbours) and gaps (distance to the nearest); near: seed squares' quads
     sampled near their corners (seed_squares); plain_seeds: how many seeds to try among the corners
     that fail the ring test (module docstring)."""
-    n = len(xy)
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     corner_like = x_like(gray, xy, gaps)[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:plain_seeds]])
