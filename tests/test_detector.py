@@ -438,6 +438,20 @@ def test_a_close_up_of_six_corners_is_a_board_of_its_own(seed, monkeypatch):
     assert ccdn.Detector(threads=2).detect(scene.image).boards == ()
 
 
+def test_a_close_ups_corner_the_frame_cuts_off_beyond_is_kept(monkeypatch):
+    """In the close-up render 7180171 (a fresh seed) the board's outermost column holds one corner,
+    whose neighbours beyond lie off the frame: extrapolated from the two columns inside, they fell
+    within the frame (perspective widens the squares column by column), and the outline trim
+    dropped the corner as a stub. Within ccdn.cleanup.TRIM_INSIDE of a step of the frame's edge the
+    frame may cut them: all 17 corners, each within 0.1 px of its label."""
+    scene = stress_scene("close-up", 7_180_171)
+    result = ccdn.Detector(threads=2).detect(scene.image)
+    assert [len(board) for board in result.boards] == [17]
+    assert nearest_distances(result.xy, scene.corners).max() < 0.1
+    monkeypatch.setattr("ccdn.cleanup.TRIM_INSIDE", 0.0)
+    assert [len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards] == [16]
+
+
 def test_a_fisheye_close_up_is_told_by_its_largest_squares():
     """Through a fisheye lens a close-up's squares thin from ~130 px at the centre to a few px at the
     rim (the stress set's fisheye close-up render 7190017: 43 corners, none found before): the board

@@ -39,6 +39,9 @@ MAX_TURN = 15.0  # degrees between consecutive steps along a row or column: a sh
 HIDDEN_EDGES = 0.6  # prune keeps a corner whose neighbours are hidden if its half-edges are this even (_hidden_around)
 OUTLINE_STUB = 0.3  # an outermost line this short against the line inside it is an outline artefact ...
 OUTLINE_SHORT = 0.6  # ... and one this short whose corners' half-edges are uneven (OUTLINE_EVEN; trim_outline)
+TRIM_INSIDE = 0.25  # of a step: an outermost line's missing corners, extrapolated from the two lines inside,
+# count as inside the frame only this far inside it; nearer its edge the frame may cut them off (perspective widens
+# a close-up's squares from one line to the next, so the extrapolation falls short: trim_outline)
 OUTLINE_EVEN = 0.5  # of the strongest half-edge's log-scale contrast, each of a corner's four at least
 BRIDGE = 0.4  # an inner line this short against both lines beside it joins two boards (Cleanup.split_at_bridge) ...
 MIN_BRIDGED = 4  # ... where each of those holds this many corners ...
@@ -135,7 +138,9 @@ class Cleanup:
         edge, clutter that continues its pattern for a few squares lets the outline pass the image
         test there (on the stress renders, every false positive of the clean, motion-blur, defocus,
         low-contrast and two-boards subsets lay on such a stub). A line that the frame cuts keeps
-        its corners."""
+        its corners: one whose missing corners, extrapolated, lie off the frame or within TRIM_INSIDE
+        of a step of its edge (80 fresh close-ups: 2 corners more, whose line's next squares
+        perspective widened past the frame's edge)."""
         filled = self.idx >= 0
         drop = np.zeros_like(filled)
         for columns, grid, mask, pos in ((False, filled, drop, self.pos),
@@ -151,9 +156,12 @@ class Cleanup:
                 if not stub:
                     continue
                 missing = grid[inner] & ~grid[outer]
-                beyond = 2 * pos[inner, missing] - pos[inner + step, missing]  # where the outer corners would be
-                beyond = beyond[np.isfinite(beyond).all(1)]
-                if len(beyond) and self.sampler.contains(beyond).all():
+                last = pos[inner, missing] - pos[inner + step, missing]
+                beyond = pos[inner, missing] + last  # where the outer corners would be
+                known = np.isfinite(beyond).all(1)
+                margin = TRIM_INSIDE * vector_lengths(last[known])[:, None]
+                frame_end = np.array([self.sampler.width - 1, self.sampler.height - 1])
+                if known.any() and ((beyond[known] >= margin) & (beyond[known] <= frame_end - margin)).all():
                     mask[outer] |= grid[outer]
         self.idx[drop] = -1
         self.pos[drop] = np.nan
