@@ -143,6 +143,7 @@ class Cleanup:
         perspective widened past the frame's edge)."""
         filled = self.idx >= 0
         drop = np.zeros_like(filled)
+        frame_end = np.array([self.sampler.width - 1, self.sampler.height - 1])
         for columns, grid, mask, pos in ((False, filled, drop, self.pos),
                                          (True, filled.T, drop.T, self.pos.transpose(1, 0, 2))):
             lines = np.nonzero(grid.any(1))[0]
@@ -160,7 +161,6 @@ class Cleanup:
                 beyond = pos[inner, missing] + last  # where the outer corners would be
                 known = np.isfinite(beyond).all(1)
                 margin = TRIM_INSIDE * vector_lengths(last[known])[:, None]
-                frame_end = np.array([self.sampler.width - 1, self.sampler.height - 1])
                 if known.any() and ((beyond[known] >= margin) & (beyond[known] <= frame_end - margin)).all():
                     mask[outer] |= grid[outer]
         self.idx[drop] = -1

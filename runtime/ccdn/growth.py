@@ -11,9 +11,9 @@ diagonal neighbours; the median of the predictions), and the nearest free corner
 shorter local lattice step (or of 1.5 x the cell's lesser height, where that is less: SLIVER_REACH)
 is taken if it passes the image test, and unless, lying over half that tolerance off, another free
 corner fits the prediction about as well (AMBIGUOUS; in the ring-at-once rounds too). No corner is
-taken where the local steps are flatter than a seed's may be (the sine of their angle at most MIN_SINE, in every growth step): on the slivers of
-boards tilted 60-75 degrees the tips where two squares of one colour nearly touch score like
-corners, and a lattice of such tips passed the image test (a stress render: 16 of a board's 25
+taken where the local steps are flatter than a seed's may be (the sine of their angle at most
+MIN_SINE, in every growth step): on the slivers of boards tilted 60-75 degrees the tips where two
+squares of one colour nearly touch score like corners, and a lattice of such tips passed the image test (a stress render: 16 of a board's 25
 corners 2-4 px off). Nor do these rounds or completion take one that turns a row or column sharply
 at it or its neighbours (GROWTH_TURN; ccdn.cleanup settles what is left). When nothing more can be
 added, growth may jump over one missing position along a row or column (a hole, not the end of the

@@ -44,6 +44,7 @@ from collections import deque
 import cv2
 import numpy as np
 
+from .lattice import first_of_each_cell
 from .stats import median, quantile, vector_lengths
 
 LINK_REACH = 8  # nearest corners each is paired with: its 4 edge neighbours and 4 diagonal ones on a square lattice
@@ -70,8 +71,7 @@ def edge_pairs(image: np.ndarray, xy: np.ndarray, neighbours: np.ndarray) -> tup
     +90-degree normal) is the lighter."""
     near = neighbours[:, :LINK_REACH]
     pairs = np.sort(np.stack([np.repeat(np.arange(len(xy)), near.shape[1]), near.ravel()], 1), axis=1)
-    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
-    pairs = pairs[np.r_[True, (np.diff(pairs, axis=0) != 0).any(1)][: len(pairs)]]  # each once, smaller first
+    pairs = pairs[first_of_each_cell(pairs)]  # each once, smaller first, in (first, second) order
     pairs = pairs[(xy[pairs[:, 0]] != xy[pairs[:, 1]]).any(1)]  # two points at one place have no segment
     if not len(pairs):
         return pairs, np.zeros(0)
