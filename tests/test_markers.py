@@ -11,7 +11,9 @@ import pytest
 import ccdn
 from ccdn.checker import Sampler
 from ccdn.grid import _marked, find_boards
+from ccdn.growth import Grower
 from ccdn.lattice import distances
+from conftest import stress_scene, true_board
 
 SQUARE, MARGIN, COLS, ROWS = 60, 60, 10, 7  # squares; inner corners (COLS - 1) x (ROWS - 1)
 WARP = np.float32([[40, 30], [600, 60], [620, 450], [10, 420]])  # where the board image's corners go in a 640x480 view
@@ -76,6 +78,20 @@ def test_markers_of_four_fifths_of_large_squares_leave_a_border_wide_enough():
     result = ccdn.Detector(threads=1).detect(view)
     assert len(result.boards) == 1 and len(result.xy) == len(truth) == (COLS - 1) * (ROWS - 1)
     assert distances(truth, result.xy.astype(np.float64)).min(1).max() < 0.3
+
+
+def test_a_marked_boards_crowded_corners_are_judged_near_them(monkeypatch):
+    """On the markers render 7170329 (a fresh seed) each corner of the ChArUco-style board has the
+    markers' own corners within 0.75 of a step: growth judged such crowded corners' quads uniform or
+    not as widely as a plain seed square's, across the markers, and the board fell apart into six
+    pieces of 8-29 corners. Judged near the corners, as the marker search's seed squares are
+    (ccdn.seeds.NearQuads), it is one board of 154 of its 156 corners, indexed as it is."""
+    pytest.importorskip("ccdn_training.synth")
+    scene = stress_scene("markers", 7_170_329)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [154] and true_board(boards[0], scene, 1.0)
+    monkeypatch.setattr("ccdn.grid.Grower", lambda *args: Grower(*args[:-1]))  # without `near`: sampled widely
+    assert max(len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards) < 30
 
 
 def test_calibrate_command_recovers_a_camera_from_charuco_views(tmp_path):

@@ -47,7 +47,9 @@ vary by at most WIDE_SPREAD x the contrast) at a corner with another detected on
 CROWDED x the shorter step, i.e. inside its cells: there a sublattice of another board passed, its
 quad centres on square centres (steps (2, 1) and (-1, 2) of its squares; in a stress render a board
 of 45 px squares grew onto 16 corners of its 21 px-square neighbour), and so did tips near a steep
-board's corners. An occluder
+board's corners. On a board seeded from quads sampled near their corners (Grower.near: ccdn.grid's
+marker search), so are these: a marked board's corners are all crowded by the markers' own, whose
+bits make its light quads anything but uniform where a plain seed's are sampled. An occluder
 (or another board) over one quad's centre fails that test at a corner the image still shows: a
 corner the network proposed that fails it gets a second chance where the three other quads' pairs
 pass and the four quads alternate close to the corner, sampled 0.36 of the way to their centres,
@@ -77,6 +79,7 @@ from .completion import SHADED_CONTRAST, Completion
 from .lattice import (SEED_AXES, SEED_REACH_UNIFORM, SHADE_OFFSET, TOLERANCE, bends, distances, first_of_each_cell,
                       held_on_two_sides, looks_flat, project_with_steps, quad_contrast, row_col_neighbours,
                       shorter_length, square_enough)
+from .seeds import NearQuads
 from .stats import median, nanmedian_rows
 
 SLIVER_REACH = 1.5  # growth's tolerance is TOLERANCE (ccdn.lattice) of the shorter local step, or of this x the
@@ -129,8 +132,10 @@ class Grower(Completion, Cleanup, Bridging):
 
     def __init__(self, xy: np.ndarray, free: np.ndarray, sampler: Sampler, gaps: np.ndarray,
                  gray: np.ndarray | None = None, first_added: int = 0, occupied: np.ndarray | None = None,
-                 score: np.ndarray | None = None) -> None:
+                 score: np.ndarray | None = None, near: NearQuads | None = None) -> None:
         self.xy, self.free, self.sampler = xy, free.copy(), sampler
+        self.near = near  # the seed squares' quads were sampled near their corners (ccdn.seeds): so is the
+        # crowded corners' uniformity (_accepts)
         self.score = score  # the corners' network scores (find_boards' score): vouch() needs them
         self.gaps = gaps  # each corner's distance to the nearest other one (find_boards' nearest_neighbours)
         self.gray = gray  # given: complete the grid from the image (ccdn.completion)
@@ -271,8 +276,11 @@ class Grower(Completion, Cleanup, Bridging):
         # and no second chance either: the second chance passes a corner of a denser lattice around itself
         mixed = np.zeros(k, bool)
         if crowded is not None and crowded.any():
-            wide_diffs, wide_spread = quad_differences(self.sampler, points[crowded], u[crowded], v[crowded],
-                                                       SEED_REACH_UNIFORM, SEED_AXES)
+            wide_u, wide_v = u[crowded], v[crowded]
+            if self.near is not None:  # where the seed squares were sampled near their corners (a marked board)
+                wide_u, wide_v = self.near.steps(wide_u, wide_v)
+            wide_diffs, wide_spread = quad_differences(self.sampler, points[crowded], wide_u, wide_v,
+                                                       SEED_REACH_UNIFORM, SEED_AXES if self.near is None else 0.0)
             mixed[crowded] = wide_spread > WIDE_SPREAD * np.abs(nanmedian_rows(wide_diffs))
             plain &= ~mixed
         far_diffs = pair_differences(far[0]) * sign[:, None]

@@ -29,6 +29,11 @@ class NearQuads(NamedTuple):
     low: float
     high: float
 
+    def steps(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lattice steps u, v (K, 2) scaled so that quads sampled with them lie near their corners."""
+        share = np.clip(2 * self.inset / altitude(u, v), self.low, self.high)[:, None]  # heights >= MIN_SQUARE_PX
+        return share * u, share * v
+
 
 @lru_cache(maxsize=4)
 def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -117,8 +122,7 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
             continue
         su, sv = uu[t], vv[t]  # the steps the quads are sampled with
         if near is not None:
-            share = np.clip(2 * near.inset / altitude(su, sv), near.low, near.high)[:, None]  # heights >= MIN_SQUARE_PX
-            su, sv = share * su, share * sv
+            su, sv = near.steps(su, sv)
         # many squares: the seed corner alone first (passing needs its 4 quad pairs to differ one way by MIN_CONTRAST)
         if len(t) > FEW_SQUARES:
             seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], su, sv, SEED_REACH_UNIFORM, axes)
