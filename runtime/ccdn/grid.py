@@ -252,8 +252,9 @@ def _grow_board(xy: np.ndarray, free: np.ndarray, sampler: Sampler, gray: np.nda
     """The board grown from a verified seed square (seed_squares' found, corners, sign, contrast) over
     the free corners (gray given: with completion; `added`: corners earlier boards completed; gaps: each
     corner's distance to its nearest; score: their network scores; near: how the seed squares' quads
-    were sampled, and growth's crowded corners' too), pruned, vouched for and trimmed; None when it is smaller than MIN_PIECE or MIN_EXTENT, or is a piece (under MIN_CORNERS) with a
-    corner off the lattice of the others (ccdn.lattice.each_where_the_others_put_it)."""
+    were sampled, and growth's crowded corners' too), pruned, vouched for and trimmed; None when it
+    is smaller than MIN_PIECE or MIN_EXTENT, or is a piece (under MIN_CORNERS) with a corner off the
+    lattice of the others (ccdn.lattice.each_where_the_others_put_it)."""
     occupied = np.concatenate([xy[~free], np.reshape(added, (-1, 2))])
     grower = Grower(xy, free, sampler, gaps, gray, len(xy) + len(added), occupied, score, near)
     grower.seed(square[1], float(square[2]), float(square[3]))
