@@ -10,9 +10,10 @@ import pytest
 
 import ccdn
 from ccdn.checker import Sampler
-from ccdn.grid import _marked, find_boards
+from ccdn.grid import MARKER_DARK, _marked, find_boards, nearest_neighbours
 from ccdn.growth import Grower
 from ccdn.lattice import distances
+from ccdn.seeds import SEED_REACH, seed_squares
 from conftest import stress_scene, true_board
 
 SQUARE, MARGIN, COLS, ROWS = 60, 60, 10, 7  # squares; inner corners (COLS - 1) x (ROWS - 1)
@@ -92,6 +93,31 @@ def test_a_marked_boards_crowded_corners_are_judged_near_them(monkeypatch):
     assert [len(board) for board in boards] == [154] and true_board(boards[0], scene, 1.0)
     monkeypatch.setattr("ccdn.grid.Grower", lambda *args: Grower(*args[:-1]))  # without `near`: sampled widely
     assert max(len(board) for board in ccdn.Detector(threads=2).detect(scene.image).boards) < 30
+
+
+@pytest.mark.parametrize("markers", [True, False], ids=["marked", "plain"])
+def test_dark_squares_pass_only_squares_whose_light_quads_hold_markers(markers):
+    """ccdn.seeds.dark_squares judges a seed square by its dark quads: every corner of the marked board
+    seeds one, no corner of the same board without markers (its light quads are uniform)."""
+    view, truth = board_view(markers)
+    neighbours = nearest_neighbours(truth, SEED_REACH)[0]
+    found = seed_squares(truth, Sampler(view), np.arange(len(truth)), neighbours, np.ones(len(truth), bool), (0,),
+                         MARKER_DARK)[0][0]
+    assert found.sum() == (len(truth) if markers else 0)
+
+
+def test_markers_with_too_thin_a_light_border_seed_from_the_dark_squares(monkeypatch):
+    """On the markers render 7170163 (a fresh seed: squares of ~11 px, the markers' light border a pixel
+    or two) no seed square passes on quads sampled near the corners and the board was lost whole.
+    Searched again with seed squares judged by their dark quads (ccdn.seeds.dark_squares: uniform, and
+    darker than each light quad's lightest sample, the light quads' samples ranging over markers), it
+    is found whole, 12 corners, indexed as they are."""
+    pytest.importorskip("ccdn_training.synth")
+    scene = stress_scene("markers", 7_170_163)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [len(scene.corners)] == [12] and true_board(boards[0], scene, 0.5)
+    monkeypatch.setattr("ccdn.grid.MARKER_DARK", ccdn.grid.MARKER_QUADS)  # no search from the dark squares
+    assert ccdn.Detector(threads=2).detect(scene.image).boards == ()
 
 
 def test_calibrate_command_recovers_a_camera_from_charuco_views(tmp_path):

@@ -70,7 +70,13 @@ much more than its dark quads'); a plain board it finds (e.g. one whose seed squ
 spoils) took outline points with it. Only frames where nothing else is found can change (stress
 renders with markers, ccdn_training.synth's p_markers: 86 -> 29 % missed, held out 74-77 -> 10-12 %;
 OpenCV's ChArUco images: 21 -> 34 of 54 boards at 640x480, 3 -> 9 of 9 at 2000x1500; every frame
-with a board found before the same). The same search finds close-ups: a few squares filling the
+with a board found before the same). Where markers leave a light border of a pixel or two (small
+squares, or markers of 0.7-0.8 of the square), no quad sampled near a corner is uniform either: where
+that search finds no board, it runs once more with seed squares judged by their dark quads
+(MARKER_DARK, ccdn.seeds.dark_squares; stress renders with markers: held out 2.1 -> 1.7 % and 6.2 ->
+4.5 % missed, no false positive; OpenCV's ChArUco images 34 -> 44 of 54 boards; ~2400 other cached
+renders bit for bit the same; boardless frames spend 4-6 % of their time on it). The same search finds
+close-ups: a few squares filling the
 frame, whose size perspective changes from one square to the next, so that the plain search's quads,
 sampled widely with one square's steps, cross into other squares; a plain board it finds is kept
 where its largest squares span over CLOSE_UP of the frame's shorter side (_close_up), where close_ups is
@@ -135,6 +141,8 @@ SAME_CORNER_PX = 1.0  # a free corner this close to one a board completed from t
 MARKER_QUADS = NearQuads(3.0, 0.1, 0.15)  # where the search for a marked board samples seed squares' quads: ~3 px
 # from the corner along each step, 0.1-0.15 of the steps (squares over 40 px: 0.15 reached the markers of 0.8 of the
 # square on 145 px squares; under 40 px: nearer than 0.15 the squares' edges blur the samples)
+MARKER_DARK = MARKER_QUADS._replace(dark=True)  # ... and, where that search finds no board, seed squares judged by
+# their dark quads (ccdn.seeds.dark_squares), growth's crowded corners still near them
 CLOSE_UP = 0.15  # of the frame's shorter side: a plain board the marker search finds is kept where the longest tenth
 # of its lattice steps are longer (_close_up). Boards of 88-192 px squares at 640x480, 8-13 corners in view, their
 # perspective changing the squares' size from one to the next (renders with squares of 100-200 px): the seed squares'
@@ -418,8 +426,11 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
         if sum(map(len, again)) > sum(map(len, boards)):
             boards = again
     if markers and not boards:  # a ChArUco-style board or a close-up (module docstring, Markers)
-        found = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete, uneven_seeds,
-                        MARKER_QUADS, plain_seeds=0)
+        for quads in (MARKER_QUADS, MARKER_DARK):  # the dark squares' seeds where the others find no board
+            found = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete,
+                            uneven_seeds, quads, plain_seeds=0)
+            if found:
+                break
         boards = tuple(board for board in found
                        if _marked(sampler, board) or (close_ups and _close_up(board, gray.shape)))
     if close_ups:

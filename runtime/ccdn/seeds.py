@@ -9,7 +9,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .checker import MIN_CONTRAST, Sampler, altitude, quad_differences
+from .checker import MIN_CONTRAST, Sampler, altitude, quad_differences, quad_levels
 from .lattice import SEED_AXES, SEED_REACH_UNIFORM, TOLERANCE, unsheared
 from .stats import median, vector_lengths
 
@@ -19,15 +19,22 @@ SEED_CHUNK = 256  # seeds checked at once
 FEW_SQUARES = 3  # seed squares up to this many (one seed's first round) are sampled at all 4 corners in one call:
 # a call costs as much as 20-50 corners, while the seed corner alone fails ~4 in 5 of many seeds' squares (clutter)
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
+DARK_CONTRAST = 8.0  # grey levels: dark_squares' least contrast (its light quads' lightest samples over its dark
+DARK_SPREAD = 0.25  # quads' medians); its dark quads' samples range under this x the contrast (uniform), ...
+DARK_GAP = 0.4  # ... each light quad holds a sample lighter than every dark quad's lightest by this x it, ...
+MARKED_SPREAD = 0.5  # ... and the light quads' samples range over this x it (median): markers in them
 
 
 class NearQuads(NamedTuple):
     """Seed squares' quads sampled near their corners (ccdn.grid, Markers): about `inset` px from the
-    corner along each step, i.e. 2 inset / the square's height of the steps, kept within low..high."""
+    corner along each step, i.e. 2 inset / the square's height of the steps, kept within low..high.
+    dark: the seed squares are judged by their dark quads instead (dark_squares), sampled widely: a
+    marked board whose markers leave too thin a light border to sample near its corners."""
 
     inset: float
     low: float
     high: float
+    dark: bool = False
 
     def steps(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Lattice steps u, v (K, 2) scaled so that quads sampled with them lie near their corners."""
@@ -69,41 +76,11 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
         return [tuple(np.concatenate(arrays) for arrays in zip(*level)) for level in zip(*parts)]
     n_seeds = len(seeds)
     none = (np.zeros(n_seeds, bool), np.zeros((n_seeds, 4), np.int64), np.zeros(n_seeds), np.zeros(n_seeds))
-    valid = free[neighbours]
-    rows = np.arange(n_seeds)[:, None]
-    free_first = np.argsort(~valid, axis=1, kind="stable")[:, :SEED_NEIGHBOURS]  # free neighbours first, nearest first
-    nb, nb_valid = neighbours[rows, free_first], valid[rows, free_first]
-    i, j = _pairs(nb.shape[1])
-    around = xy[neighbours] - xy[seeds][:, None]  # (S, K, 2) candidates relative to their seed, in their given order
-    steps = around[rows, free_first]  # (S, N, 2) the steps to the nearest free candidates
-    # pairs (u, v) of steps to the nearest candidates (S, P), from each step's coordinates and length
-    step_x, step_y = steps[..., 0], steps[..., 1]
-    length = vector_lengths(steps)
-    lu, lv = length[:, i], length[:, j]
-    cross = step_x[:, i] * step_y[:, j] - step_y[:, i] * step_x[:, j]
-    hypot = np.hypot(step_x, step_y)  # square_enough's lengths (hypot's last bit, not the norm's)
-    longer = np.maximum(lu, lv)
-    ok = (nb_valid[:, i] & nb_valid[:, j] & unsheared(cross, hypot[:, i], hypot[:, j]) & (lu < 5 * lv)
-          & (lv < 5 * lu) & (np.abs(cross) >= MIN_SQUARE_PX * longer))
-    si, pi = np.nonzero(ok)  # the fourth corner is sought for the plausible pairs only
-    flip = cross[si, pi] < 0
-    ia, ib = np.where(flip, j[pi], i[pi]), np.where(flip, i[pi], j[pi])  # u x v > 0
-    a, b = nb[si, ia], nb[si, ib]
-    uu, vv = steps[si, ia], steps[si, ib]
-    size = longer[si, pi]  # the longer step
-    # the fourth corner: the candidate nearest p + u + v, invalid ones far away (argmin's first of equals: the
-    # same free candidate in the given order as with the free ones first)
-    around[~valid] = np.inf
-    target = uu + vv
-    d2 = ((around[si, :, 0] - target[:, :1]) ** 2) + ((around[si, :, 1] - target[:, 1:]) ** 2)  # (G, K)
-    nearest = d2.argmin(1)
-    fourth = neighbours[si, nearest]
-    tol = TOLERANCE * np.minimum(lu[si, pi], lv[si, pi])
-    keep = ((d2[np.arange(len(si)), nearest] < tol**2) & (fourth != seeds[si]) & (fourth != a) & (fourth != b))
-    si, a, b, fourth, uu, vv, size = si[keep], a[keep], b[keep], fourth[keep], uu[keep], vv[keep], size[keep]
+    si, square, uu, vv, size = _candidate_squares(xy, seeds, neighbours, free)
     if len(si) == 0:
         return [none] * len(uneven)
-    square = np.stack([seeds[si], a, b, fourth], 1)  # (G, 4)
+    if near is not None and near.dark:
+        return [dark_squares(sampler, xy, n_seeds, si, square, uu, vv, size)] * len(uneven)
     by_size = np.lexsort((size, si))  # each seed's squares, shortest first
     rank = np.empty(len(si), np.int64)
     rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
@@ -150,16 +127,108 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
                                        > np.maximum(MIN_CONTRAST, 0.4 * g_contrast[t]))
             for level, count in enumerate(uneven):
                 passed[level, t] = even & (spreads[:, 3 - count] < 0.5 * g_contrast[t])
-    results = []
-    for level_passed in passed:
-        found, corners, sign, contrast = (part.copy() for part in none)
-        best = by_size[level_passed[by_size]]  # passing squares by seed, shortest first
-        owner = si[best]
-        head = np.ones(len(best), bool)  # each seed's first (np.unique's first occurrences, without its sort)
-        head[1:] = owner[1:] != owner[:-1]
-        first = best[head]
-        found[si[first]] = True
-        corners[si[first]] = square[first]
-        sign[si[first]], contrast[si[first]] = g_sign[first], g_contrast[first]
-        results.append((found, corners, sign, contrast))
-    return results
+    return [_shortest_passing(n_seeds, si, square, by_size, level_passed, g_sign, g_contrast)
+            for level_passed in passed]
+
+
+def _shortest_passing(n_seeds: int, si: np.ndarray, square: np.ndarray, by_size: np.ndarray, passed: np.ndarray,
+                      sign: np.ndarray, contrast: np.ndarray) -> tuple[np.ndarray, ...]:
+    """seed_squares' result for one count: each seed's shortest passing square (squares (G, 4) of seeds
+    si (G,), by_size: their order by seed, then length; passed, sign, contrast: (G,) each)."""
+    found, corners = np.zeros(n_seeds, bool), np.zeros((n_seeds, 4), np.int64)
+    seed_sign, seed_contrast = np.zeros(n_seeds), np.zeros(n_seeds)
+    best = by_size[passed[by_size]]  # passing squares by seed, shortest first
+    owner = si[best]
+    head = np.ones(len(best), bool)  # each seed's first (np.unique's first occurrences, without its sort)
+    head[1:] = owner[1:] != owner[:-1]
+    first = best[head]
+    found[si[first]] = True
+    corners[si[first]] = square[first]
+    seed_sign[si[first]], seed_contrast[si[first]] = sign[first], contrast[first]
+    return found, corners, seed_sign, seed_contrast
+
+
+def _candidate_squares(xy: np.ndarray, seeds: np.ndarray, neighbours: np.ndarray, free: np.ndarray
+                       ) -> tuple[np.ndarray, ...]:
+    """seed_squares' candidates, before any image test: each plausible square p, p + u, p + v, p + u + v
+    of a seed p (its steps u, v to two of its SEED_NEIGHBOURS nearest free corners, its fourth corner the
+    free one nearest p + u + v): the seed's row (G,), the square's corners (G, 4) ordered (0,0), (0,1),
+    (1,0), (1,1), u and v (G, 2) with u x v > 0, and the longer step's length (G,)."""
+    valid = free[neighbours]
+    rows = np.arange(len(seeds))[:, None]
+    free_first = np.argsort(~valid, axis=1, kind="stable")[:, :SEED_NEIGHBOURS]  # free neighbours first, nearest first
+    nb, nb_valid = neighbours[rows, free_first], valid[rows, free_first]
+    i, j = _pairs(nb.shape[1])
+    around = xy[neighbours] - xy[seeds][:, None]  # (S, K, 2) candidates relative to their seed, in their given order
+    steps = around[rows, free_first]  # (S, N, 2) the steps to the nearest free candidates
+    # pairs (u, v) of steps to the nearest candidates (S, P), from each step's coordinates and length
+    step_x, step_y = steps[..., 0], steps[..., 1]
+    length = vector_lengths(steps)
+    lu, lv = length[:, i], length[:, j]
+    cross = step_x[:, i] * step_y[:, j] - step_y[:, i] * step_x[:, j]
+    hypot = np.hypot(step_x, step_y)  # square_enough's lengths (hypot's last bit, not the norm's)
+    longer = np.maximum(lu, lv)
+    ok = (nb_valid[:, i] & nb_valid[:, j] & unsheared(cross, hypot[:, i], hypot[:, j]) & (lu < 5 * lv)
+          & (lv < 5 * lu) & (np.abs(cross) >= MIN_SQUARE_PX * longer))
+    si, pi = np.nonzero(ok)  # the fourth corner is sought for the plausible pairs only
+    flip = cross[si, pi] < 0
+    ia, ib = np.where(flip, j[pi], i[pi]), np.where(flip, i[pi], j[pi])  # u x v > 0
+    a, b = nb[si, ia], nb[si, ib]
+    uu, vv = steps[si, ia], steps[si, ib]
+    size = longer[si, pi]  # the longer step
+    # the fourth corner: the candidate nearest p + u + v, invalid ones far away (argmin's first of equals: the
+    # same free candidate in the given order as with the free ones first)
+    around[~valid] = np.inf
+    target = uu + vv
+    d2 = ((around[si, :, 0] - target[:, :1]) ** 2) + ((around[si, :, 1] - target[:, 1:]) ** 2)  # (G, K)
+    nearest = d2.argmin(1)
+    fourth = neighbours[si, nearest]
+    tol = TOLERANCE * np.minimum(lu[si, pi], lv[si, pi])
+    keep = ((d2[np.arange(len(si)), nearest] < tol**2) & (fourth != seeds[si]) & (fourth != a) & (fourth != b))
+    square = np.stack([seeds[si], a, b, fourth], 1)
+    return si[keep], square[keep], uu[keep], vv[keep], size[keep]
+
+
+_EVEN_QUADS = np.array([[1, 0, 0, 1], [0, 1, 1, 0], [0, 1, 1, 0], [1, 0, 0, 1]], bool)  # [corner, quad] of a seed
+# square: whether the quad (quad_levels' order) is one of even row + col, at corners (0,0), (0,1), (1,0), (1,1)
+_EVEN_QUADS.setflags(write=False)
+
+
+def dark_squares(sampler: Sampler, xy: np.ndarray, n_seeds: int, si: np.ndarray, square: np.ndarray,
+                 uu: np.ndarray, vv: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, ...]:
+    """seed_squares' result for a marked board whose markers leave too thin a light border to sample
+    near the corners (NearQuads.dark; ccdn.grid, Markers), from the candidates of _candidate_squares
+    (each seed's 3 shortest): quads sampled widely, a square passes where its 8 dark quads (those of
+    one parity: the darker by their medians) are uniform (every sample range under DARK_SPREAD of the
+    contrast), its 8 light quads each hold a sample lighter than every dark quad's lightest by
+    DARK_GAP of it, and those quads' samples range over MARKED_SPREAD of it (markers; the contrast:
+    the light quads' lightest samples over the dark quads' medians, both their median, at least
+    DARK_CONTRAST). The seed corner is judged alone first (its light quads' lightest samples above
+    its dark ones')."""
+    by_size = np.lexsort((size, si))
+    rank = np.empty(len(si), np.int64)
+    rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
+    t = np.nonzero(rank < 3)[0]
+    _, _, high = quad_levels(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM, SEED_AXES)
+    own, other = (np.fmax(high[0], high[3]), np.fmin(high[0], high[3])), (np.fmax(high[1], high[2]),
+                                                                         np.fmin(high[1], high[2]))
+    with np.errstate(invalid="ignore"):  # NaN: a quad off the image
+        t = t[(own[0] < other[1]) | (other[0] < own[1])]  # one parity's lightest samples under the other's
+    passed, sign, contrast = np.zeros(len(si), bool), np.zeros(len(si)), np.zeros(len(si))
+    if len(t):
+        middle, low, high = (part.reshape(4, len(t), 4).transpose(1, 2, 0)  # (squares, corner, quad)
+                             for part in quad_levels(sampler, xy[square[t].ravel()], np.repeat(uu[t], 4, 0),
+                                                     np.repeat(vv[t], 4, 0), SEED_REACH_UNIFORM, SEED_AXES))
+        even = np.broadcast_to(_EVEN_QUADS, middle.shape)
+        even_darker = (median(middle[even].reshape(len(t), 8), axis=1)
+                       < median(middle[~even].reshape(len(t), 8), axis=1))
+        dark = np.where(even_darker[:, None, None], even, ~even)
+        dark_middle, dark_low, dark_high = (part[dark].reshape(len(t), 8) for part in (middle, low, high))
+        light_low, light_high = (part[~dark].reshape(len(t), 8) for part in (low, high))
+        gap = median(light_high, axis=1) - median(dark_middle, axis=1)
+        with np.errstate(invalid="ignore"):
+            passed[t] = ((gap > DARK_CONTRAST) & ((dark_high - dark_low).max(1) < DARK_SPREAD * gap)
+                         & (light_high.min(1) > dark_high.max(1) + DARK_GAP * gap)
+                         & (median(light_high - light_low, axis=1) > MARKED_SPREAD * gap))
+        sign[t], contrast[t] = np.where(even_darker, -1.0, 1.0), gap
+    return _shortest_passing(n_seeds, si, square, by_size, passed, sign, contrast)
