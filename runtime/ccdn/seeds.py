@@ -19,10 +19,10 @@ SEED_CHUNK = 256  # seeds checked at once
 FEW_SQUARES = 3  # seed squares up to this many (one seed's first round) are sampled at all 4 corners in one call:
 # a call costs as much as 20-50 corners, while the seed corner alone fails ~4 in 5 of many seeds' squares (clutter)
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
-DARK_CONTRAST = 8.0  # grey levels: dark_squares' least contrast (its light quads' lightest samples over its dark
-DARK_SPREAD = 0.25  # quads' medians); its dark quads' samples range under this x the contrast (uniform), ...
+DARK_CONTRAST = 8.0  # grey levels, at least: dark_squares' contrast (light quads' lightest samples - dark medians)
+DARK_SPREAD = 0.25  # x that contrast: dark_squares' dark quads' samples range less (uniform), ...
 DARK_GAP = 0.4  # ... each light quad holds a sample lighter than every dark quad's lightest by this x it, ...
-MARKED_SPREAD = 0.5  # ... and the light quads' samples range over this x it (median): markers in them
+MARKED_SPREAD = 0.5  # ... and the light quads' samples range more than this x it (median): markers in them
 
 
 class NearQuads(NamedTuple):
@@ -61,7 +61,7 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
     sampled for the strictest, which samples further only for the seeds none of whose shortest passed).
     near: the corners' quads sampled near them (NearQuads; ccdn.grid.MARKER_QUADS: inside a marked
     square's light border), and without the samples along the steps (SEED_AXES), which there fall
-    on the corner's own edges.
+    on the corner's own edges; with near.dark, the squares judged by dark_squares instead.
 
     A square is p, p + u, p + v and a fourth corner near p + u + v, with u, v from the seed's
     SEED_NEIGHBOURS nearest free corners, whose four corners pass the image test; of the passing
@@ -209,11 +209,11 @@ def dark_squares(sampler: Sampler, xy: np.ndarray, n_seeds: int, si: np.ndarray,
     rank = np.empty(len(si), np.int64)
     rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
     t = np.nonzero(rank < 3)[0]
-    _, _, high = quad_levels(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM, SEED_AXES)
-    own, other = (np.fmax(high[0], high[3]), np.fmin(high[0], high[3])), (np.fmax(high[1], high[2]),
-                                                                         np.fmin(high[1], high[2]))
+    lightest = quad_levels(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM, SEED_AXES)[2]
+    own_max, own_min = np.fmax(lightest[0], lightest[3]), np.fmin(lightest[0], lightest[3])  # the seed's parity
+    other_max, other_min = np.fmax(lightest[1], lightest[2]), np.fmin(lightest[1], lightest[2])
     with np.errstate(invalid="ignore"):  # NaN: a quad off the image
-        t = t[(own[0] < other[1]) | (other[0] < own[1])]  # one parity's lightest samples under the other's
+        t = t[(own_max < other_min) | (other_max < own_min)]  # one parity's lightest samples under the other's
     passed, sign, contrast = np.zeros(len(si), bool), np.zeros(len(si)), np.zeros(len(si))
     if len(t):
         middle, low, high = (part.reshape(4, len(t), 4).transpose(1, 2, 0)  # (squares, corner, quad)
