@@ -1,11 +1,12 @@
-"""ccdn.checker: the Sampler's box means, cropped or not."""
+"""ccdn.checker: the Sampler's box means, cropped or not, and the image noise estimate."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
-from ccdn.checker import Sampler
+from ccdn.checker import Sampler, image_noise
 
 
 def test_cropped_sampler_means_equal_the_whole_frames(examples):
@@ -35,3 +36,18 @@ def test_cropped_sampler_means_equal_the_whole_frames(examples):
     everywhere = np.concatenate([corners, [[2559.4, 1919.4], [-3.0, 50.0], [1300.0, 2000.0]]])
     np.testing.assert_array_equal(cropped.mean(everywhere, 5), whole.mean(everywhere, 5))
     assert np.isnan(cropped.mean(everywhere, 5)[-2:]).all()  # centres off the image
+
+
+def test_image_noise_reads_the_added_noise(examples):
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    assert image_noise(gray) < 2.0
+    noisy = np.clip(gray + np.random.default_rng(0).normal(0, 12, gray.shape), 0, 255).astype(np.uint8)
+    assert image_noise(noisy) == pytest.approx(12, rel=0.15)
+    assert image_noise(np.zeros((2, 2), np.uint8)) == 0.0
+
+
+def test_a_sampler_estimates_its_images_noise_once(examples):
+    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
+    noisy = np.clip(gray + np.random.default_rng(1).normal(0, 8, gray.shape), 0, 255).astype(np.uint8)
+    sampler = Sampler(noisy, (np.array([[100.0, 100.0]]), 20.0))
+    assert sampler.noise() == image_noise(noisy) == pytest.approx(8, rel=0.15)

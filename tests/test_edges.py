@@ -1,13 +1,13 @@
-"""Edge-line refinement and the noise estimate that switches it on, on renders with exact labels."""
+"""Edge-line refinement, which noisy frames (ccdn.checker.image_noise) switch on, on renders with exact labels."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 
 from conftest import calm_scene, stress_scene
-from ccdn.edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
+from ccdn.checker import NOISY_SIGMA, image_noise
+from ccdn.edges import lattice_steps, on_straight_lines, refine_on_edges
 
 
 def _calm_scene(seed: int, noise: float):
@@ -17,14 +17,6 @@ def _calm_scene(seed: int, noise: float):
 
 def _errors(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.linalg.norm(found[:, None].astype(np.float64) - truth[None], axis=2).min(1)
-
-
-def test_image_noise_reads_the_added_noise(examples):
-    gray = cv2.imread(str(examples["board"]["path"]), cv2.IMREAD_GRAYSCALE)
-    assert image_noise(gray) < 2.0
-    noisy = np.clip(gray + np.random.default_rng(0).normal(0, 12, gray.shape), 0, 255).astype(np.uint8)
-    assert image_noise(noisy) == pytest.approx(12, rel=0.15)
-    assert image_noise(np.zeros((2, 2), np.uint8)) == 0.0
 
 
 def _saddle_only(monkeypatch) -> None:

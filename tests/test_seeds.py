@@ -12,7 +12,7 @@ import pytest
 from ccdn.checker import Sampler
 from ccdn.grid import BEHIND_UNEVEN, find_boards, nearest_neighbours
 from ccdn.seeds import SEED_REACH, seed_squares
-from conftest import index_map, stress_scene, whole_boards
+from conftest import index_map, stress_scene, true_board, whole_boards
 
 pytest.importorskip("ccdn_training.synth")
 
@@ -120,3 +120,18 @@ def test_one_sampling_serves_every_count_of_uneven_corners():
     for level, alone in ((1, (1, BEHIND_UNEVEN)), (2, (BEHIND_UNEVEN,))):
         for part, same in zip(together[level], seed_squares(xy, sampler, seeds, neighbours, free, alone)[0]):
             np.testing.assert_array_equal(part, same)
+
+
+def test_a_noisy_frames_seed_quads_may_range_with_its_noise(monkeypatch):
+    """On the training-distribution render 5200034 (noise of ~7.7 grey levels, a low-contrast board of
+    small squares, whose quads are sampled in single pixels) the noise alone made every seed square's
+    quads range over half its contrast, and the board was lost whole. Allowed ccdn.seeds.NOISE_RANGE x
+    the noise, 38 of its 39 corners form one board, indexed as they are."""
+    import ccdn
+    from ccdn_training.synth import SceneConfig, render_scene
+
+    scene = render_scene(np.random.default_rng(5_200_034), SceneConfig(p_no_board=0.0))
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [38] and true_board(boards[0], scene, 1.0)
+    monkeypatch.setattr("ccdn.seeds.NOISE_RANGE", 0.0)
+    assert ccdn.Detector(threads=2).detect(scene.image).boards == ()

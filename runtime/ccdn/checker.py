@@ -14,6 +14,11 @@ import numpy as np
 
 MIN_CONTRAST = 2.0  # grey levels: differences below this are noise
 CROP_MIN_SAVING = 1_000_000  # pixels a Sampler's crop must spare of the frame to be worth its bounds checks
+NOISY_SIGMA = 5.0  # grey levels of image noise from which a frame is noisy: its board corners are refined on their
+# edges (ccdn.edges), its seed squares' quads may range more (ccdn.seeds)
+NOISE_SAMPLE_PIXELS = 1 << 15  # the noise estimate's median is taken over about this many pixels (1 << 17 made
+# the same decisions on 92 real-dev frames and 320 stress renders, in 3x the time)
+_LAPLACIAN_PAIR = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]])  # zero on planes; |kernel| = 6
 
 
 class Sampler:
@@ -26,6 +31,7 @@ class Sampler:
 
     def __init__(self, gray: np.ndarray, around: tuple[np.ndarray, float] | None = None) -> None:
         self._gray = gray
+        self._noise: float | None = None  # image_noise(gray), once asked for (noise)
         self.height, self.width = gray.shape
         self._margin = 0.0
         window = (0, self.height, 0, self.width)
@@ -52,6 +58,12 @@ class Sampler:
         self._integral = cv2.integral(crop, sdepth=depth).ravel()
         self._window = top, bottom, left, right
         self._cropped = (top, bottom, left, right) != (0, self.height, 0, self.width)
+
+    def noise(self) -> float:
+        """The image noise's standard deviation in grey levels (image_noise), estimated once."""
+        if self._noise is None:
+            self._noise = image_noise(self._gray)
+        return self._noise
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         """(...) whether points (..., 2) round to a pixel of the image."""
@@ -85,6 +97,25 @@ class Sampler:
         return np.where(inside, total / area, np.nan)
 
 
+def image_noise(gray: np.ndarray) -> float:
+    """Robust estimate of the image noise's standard deviation in grey levels: the median absolute
+    response of a kernel that cancels smooth image content (Immerkaer's), scaled to a Gaussian's
+    sigma. Edges and corners are a minority of pixels, so the median ignores them. The response is
+    computed only on a strided grid of inner pixels (about NOISE_SAMPLE_PIXELS), not the whole frame."""
+    h, w = gray.shape
+    if min(h, w) < 3:
+        return 0.0
+    step = max(1, int(np.ceil(np.sqrt(gray.size / NOISE_SAMPLE_PIXELS))))
+    response = np.zeros(((h - 3) // step + 1, (w - 3) // step + 1), np.int16)
+    for dr in range(3):
+        for dc in range(3):
+            response += int(_LAPLACIAN_PAIR[dr, dc]) * gray[dr : h - 2 + dr : step, dc : w - 2 + dc : step].astype(np.int16)
+    sample = np.abs(response).ravel()
+    counts = np.bincount(sample)  # integer responses: an exact median without sorting
+    median = int(np.searchsorted(np.cumsum(counts), (sample.size + 1) / 2))
+    return 1.4826 * median / 6.0
+
+
 def altitude(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """The lesser height of the parallelograms spanned by steps u, v (N, 2): a square's narrowest
     width (0 for zero-length steps)."""
@@ -112,7 +143,7 @@ def quad_levels(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray, r
     off = ~sampler.contains(centre)
     if off.any():
         centre[off] = (p + quarter)[off]
-    samples = sampler.mean(centre[:, None] + offsets, _box_radius(u, v))  # (4 quads, S samples, K)
+    samples = sampler.mean(centre[:, None] + offsets, box_radius(u, v))  # (4 quads, S samples, K)
     ordered = np.sort(samples, axis=1)  # NaN samples (off the image) last, so all-NaN stays NaN
     # fmax skips NaN samples without nanmax's warnings
     return ordered[:, len(offsets) // 2], ordered[:, 0], np.fmax.reduce(samples, 1)
@@ -122,7 +153,7 @@ def quad_means(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) ->
     """(4, K): the mean grey level of one box at each quad's centre around corners p (K, 2), lattice
     steps u, v (K, 2), in quad_levels' order: a cheaper look than its 5 samples per quad (NaN off
     the image)."""
-    return sampler.mean(p + _combinations(u, v, _HALF_STEPS), _box_radius(u, v))
+    return sampler.mean(p + _combinations(u, v, _HALF_STEPS), box_radius(u, v))
 
 
 def _combinations(u: np.ndarray, v: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
@@ -134,7 +165,7 @@ def _combinations(u: np.ndarray, v: np.ndarray, coefficients: np.ndarray) -> np.
     return (coefficients @ basis).reshape(len(coefficients), len(u), 2)
 
 
-def _box_radius(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+def box_radius(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(K,) int: the radius of the boxes sampled in quads of steps u, v: well inside a square."""
     return np.floor(0.12 * altitude(u, v)).astype(np.int64)
 
@@ -193,7 +224,7 @@ def axis_pull(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarray) -> 
     of its crossings and cells turned 45 degrees, a crossing is dark along the lines, i.e. along its
     quad's diagonals, and light between them: ~1 (NaN where a quad is off the image)."""
     p = np.atleast_2d(p)
-    samples = sampler.mean(p + _combinations(u, v, _PULL_STEPS), _box_radius(u, v)).reshape(4, 9, -1)
+    samples = sampler.mean(p + _combinations(u, v, _PULL_STEPS), box_radius(u, v)).reshape(4, 9, -1)
     centre = samples[:, 0]  # (4, K)
     pull = _PULL_WEIGHTS @ samples  # (4, K): the axis samples' mean minus the diagonal ones'
     middle = centre.mean(0)

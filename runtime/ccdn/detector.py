@@ -1,7 +1,7 @@
 """The Detector: image -> network -> peaks -> outlier filter -> refinement -> boards, built once.
 
 Refinement is the saddle fit (ccdn.refine); the corners of the boards found are then moved onto
-their edge lines (ccdn.edges), which use many more pixels: on noisy frames (ccdn.edges.image_noise
+their edge lines (ccdn.edges), which use many more pixels: on noisy frames (ccdn.checker.image_noise
 >= NOISY_SIGMA grey levels) every corner, elsewhere those on straight lattice lines
 (ccdn.edges.on_straight_lines: no lens distortion, squares not thin). On a board under a shadow,
 the corners its edge runs across are first fitted again on the frame divided by its light level
@@ -42,7 +42,8 @@ import time
 import cv2
 import numpy as np
 
-from .edges import NOISY_SIGMA, image_noise, lattice_steps, on_straight_lines, refine_on_edges
+from .checker import NOISY_SIGMA, image_noise
+from .edges import lattice_steps, on_straight_lines, refine_on_edges
 from .grid import SHADE_SPREAD, Board, find_boards, nearest_neighbours, with_corners
 from .holes import filled_holes, hole_boxes, predicted_holes, settled
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray

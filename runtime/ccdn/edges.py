@@ -15,7 +15,7 @@ Measured on renders with exact labels (seeds 9_400_000+, disjoint from the stres
 against the saddle fit 0.170 -> 0.081 px at ~18 grey levels of noise, 0.064 -> 0.030 px at ~6,
 0.031 -> 0.014 px without noise, but 0.041 -> 0.092 px under fisheye lenses (the edges curve) and
 0.030 -> 0.036 px at extreme poses (squares a few pixels thin). So the detector uses it on every
-corner of frames whose noise (`image_noise`) is at least NOISY_SIGMA grey levels, where the noise
+corner of frames whose noise (ccdn.checker.image_noise) is at least NOISY_SIGMA grey levels, where the noise
 dominates those biases, and elsewhere on the corners `on_straight_lines` picks: of boards whose
 lines are straight (a homography fits them), at squares not thin. On the stress benchmark's
 renders (exact labels, every board corner found) that took the mean error from 0.036 to 0.024 px
@@ -44,10 +44,6 @@ from .stats import median, nanmedian_rows, vector_lengths
 if TYPE_CHECKING:  # ccdn.grid fits corners on their edges too: imported at run time, Board would be circular
     from .grid import Board
 
-NOISY_SIGMA = 5.0  # grey levels of image noise from which board corners are refined on their edges
-NOISE_SAMPLE_PIXELS = 1 << 15  # the noise estimate's median is taken over about this many pixels (1 << 17 made
-# the same decisions on 92 real-dev frames and 320 stress renders, in 3x the time)
-_LAPLACIAN_PAIR = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]])  # zero on planes; |kernel| = 6
 SMOOTHING = 1.0  # px, Gaussian sigma of the image the profiles are sampled on
 REACH = (0.1, 0.5)  # profiles from this far to this far along each half-edge (x the step to the neighbour)
 PROFILES = 8  # per half-edge
@@ -72,25 +68,6 @@ def _frozen(array: np.ndarray) -> np.ndarray:
 _ACROSS = _frozen(np.arange(-int(HALF_WIDTH / SAMPLE_STEP), int(HALF_WIDTH / SAMPLE_STEP) + 1) * SAMPLE_STEP)  # (K,)
 _ABS_ACROSS = _frozen(np.abs(_ACROSS))  # px: a profile's samples' offsets across its edge, and their distances
 _ALONG = _frozen(np.linspace(*REACH, PROFILES))  # (P,) the profiles' places along a half-edge, x its step
-
-
-def image_noise(gray: np.ndarray) -> float:
-    """Robust estimate of the image noise's standard deviation in grey levels: the median absolute
-    response of a kernel that cancels smooth image content (Immerkaer's), scaled to a Gaussian's
-    sigma. Edges and corners are a minority of pixels, so the median ignores them. The response is
-    computed only on a strided grid of inner pixels (about NOISE_SAMPLE_PIXELS), not the whole frame."""
-    h, w = gray.shape
-    if min(h, w) < 3:
-        return 0.0
-    step = max(1, int(np.ceil(np.sqrt(gray.size / NOISE_SAMPLE_PIXELS))))
-    response = np.zeros(((h - 3) // step + 1, (w - 3) // step + 1), np.int16)
-    for dr in range(3):
-        for dc in range(3):
-            response += int(_LAPLACIAN_PAIR[dr, dc]) * gray[dr : h - 2 + dr : step, dc : w - 2 + dc : step].astype(np.int16)
-    sample = np.abs(response).ravel()
-    counts = np.bincount(sample)  # integer responses: an exact median without sorting
-    median = int(np.searchsorted(np.cumsum(counts), (sample.size + 1) / 2))
-    return 1.4826 * median / 6.0
 
 
 def lattice_steps(board: Board) -> np.ndarray:
