@@ -15,9 +15,9 @@ Measured on renders with exact labels (seeds 9_400_000+, disjoint from the stres
 against the saddle fit 0.170 -> 0.081 px at ~18 grey levels of noise, 0.064 -> 0.030 px at ~6,
 0.031 -> 0.014 px without noise, but 0.041 -> 0.092 px under fisheye lenses (the edges curve) and
 0.030 -> 0.036 px at extreme poses (squares a few pixels thin). So the detector uses it on every
-corner of frames whose noise (ccdn.checker.image_noise) is at least NOISY_SIGMA grey levels, where the noise
-dominates those biases, and elsewhere on the corners `on_straight_lines` picks: of boards whose
-lines are straight (a homography fits them), at squares not thin. On the stress benchmark's
+corner of frames whose noise (ccdn.checker.image_noise) is at least ccdn.checker.NOISY_SIGMA grey
+levels, where the noise dominates those biases, and elsewhere on the corners `on_straight_lines`
+picks: of boards whose lines are straight (a homography fits them), at squares not thin. On the stress benchmark's
 renders (exact labels, every board corner found) that took the mean error from 0.036 to 0.024 px
 (clean 0.025 -> 0.012, deep shadow 0.091 -> 0.049, fisheye and extreme poses as before); on a
 held-out sample of as many renders 0.039 -> 0.027 px (with three fits per corner; two, now, gave 0.023 px

@@ -75,7 +75,7 @@ squares, or markers of 0.7-0.8 of the square), no quad sampled near a corner is 
 that search finds no board, it runs once more with seed squares judged by their dark quads
 (MARKER_DARK, ccdn.seeds.dark_squares; stress renders with markers: held out 2.1 -> 1.7 % and 6.2 ->
 4.5 % missed, no false positive; OpenCV's ChArUco images 34 -> 44 of 54 boards; ~2400 other cached
-renders bit for bit the same; boardless frames spend 4-6 % of their time on it). The same search finds
+renders and frames bit for bit the same; boardless frames spend 4-6 % of their time on it). The same search finds
 close-ups: a few squares filling the
 frame, whose size perspective changes from one square to the next, so that the plain search's quads,
 sampled widely with one square's steps, cross into other squares; a plain board it finds is kept
