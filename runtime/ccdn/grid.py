@@ -529,6 +529,11 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     growers: list[Grower] = []
     added: list[np.ndarray] = []
     pieces: list[list] = []  # the seed squares of boards under MIN_CORNERS
+
+    def grow(square: list) -> Grower | None:
+        """The board grown from a seed square over the corners free now (_grow_board)."""
+        return _grow_board(xy, free, sampler, gray if complete else None, added, square, gaps, score, near)
+
     # strict seed squares first; squares with uneven corners only among the seeds left when they are done
     # (tried first, they changed the boards the strict ones find: a fisheye board seeded elsewhere grew less);
     # squares with BEHIND_UNEVEN uneven corners last, once a board is found (module docstring)
@@ -559,8 +564,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             if square[0] and not free[square[1]].all():  # a board took some of its corners: look again
                 square = [part[0] for part in seed_squares(xy, sampler, seeds[k : k + 1], neighbours[s][None], free,
                                                             (uneven,), near)[0]]
-            grower = (_grow_board(xy, free, sampler, gray if complete else None, added, square, gaps, score, near)
-                      if square[0] else None)
+            grower = grow(square) if square[0] else None
             if grower is None:
                 continue
             if len(grower.cells()[1]) < MIN_CORNERS:  # a piece: grown again once the boards are done
@@ -573,8 +577,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
     _bridge_leftovers(growers, free)
     for square in pieces:  # pieces last: grown first, one kept corners a board grows through (module docstring)
-        if free[square[1]].all() and (grower := _grow_board(xy, free, sampler, gray if complete else None, added,
-                                                            square, gaps, score, near)) is not None:
+        if free[square[1]].all() and (grower := grow(square)) is not None:
             _take_board(grower, xy, free, added, growers)
     points = np.concatenate([xy, np.reshape(added, (-1, 2))])
     found = []

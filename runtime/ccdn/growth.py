@@ -13,8 +13,8 @@ is taken if it passes the image test, and unless, lying over half that tolerance
 corner fits the prediction about as well (AMBIGUOUS; in the ring-at-once rounds too). No corner is
 taken where the local steps are flatter than a seed's may be (the sine of their angle at most
 MIN_SINE, in every growth step): on the slivers of boards tilted 60-75 degrees the tips where two
-squares of one colour nearly touch score like corners, and a lattice of such tips passed the image test (a stress render: 16 of a board's 25
-corners 2-4 px off). Nor do these rounds or completion take one that turns a row or column sharply
+squares of one colour nearly touch score like corners, and a lattice of such tips passed the image
+test (a stress render: 16 of a board's 25 corners 2-4 px off). Nor do these rounds or completion take one that turns a row or column sharply
 at it or its neighbours (GROWTH_TURN; ccdn.cleanup settles what is left). When nothing more can be
 added, growth may jump over one missing position along a row or column (a hole, not the end of the
 board). Local predictions make this tolerant of perspective and strong radial/fisheye distortion;
@@ -76,10 +76,10 @@ from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differen
 from .bridging import Bridging
 from .cleanup import Cleanup
 from .completion import SHADED_CONTRAST, Completion
-from .lattice import (SEED_AXES, SEED_REACH_UNIFORM, SHADE_OFFSET, TOLERANCE, bends, distances, first_of_each_cell,
+from .lattice import (SEED_REACH_UNIFORM, SHADE_OFFSET, TOLERANCE, bends, distances, first_of_each_cell,
                       held_on_two_sides, looks_flat, project_with_steps, quad_contrast, row_col_neighbours,
                       shorter_length, square_enough)
-from .seeds import NearQuads
+from .seeds import NearQuads, uniform_sampling
 from .stats import median, nanmedian_rows
 
 SLIVER_REACH = 1.5  # growth's tolerance is TOLERANCE (ccdn.lattice) of the shorter local step, or of this x the
@@ -276,11 +276,9 @@ class Grower(Completion, Cleanup, Bridging):
         # and no second chance either: the second chance passes a corner of a denser lattice around itself
         mixed = np.zeros(k, bool)
         if crowded is not None and crowded.any():
-            wide_u, wide_v = u[crowded], v[crowded]
-            if self.near is not None:  # where the seed squares were sampled near their corners (a marked board)
-                wide_u, wide_v = self.near.steps(wide_u, wide_v)
+            wide_u, wide_v, axes = uniform_sampling(self.near, u[crowded], v[crowded])  # as the seed squares were
             wide_diffs, wide_spread = quad_differences(self.sampler, points[crowded], wide_u, wide_v,
-                                                       SEED_REACH_UNIFORM, SEED_AXES if self.near is None else 0.0)
+                                                       SEED_REACH_UNIFORM, axes)
             mixed[crowded] = wide_spread > WIDE_SPREAD * np.abs(nanmedian_rows(wide_diffs))
             plain &= ~mixed
         far_diffs = pair_differences(far[0]) * sign[:, None]

@@ -52,6 +52,16 @@ class NearQuads(NamedTuple):
         return share * u, share * v
 
 
+def uniform_sampling(near: NearQuads | None, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """How a seed square's quads are sampled for their uniformity at corners with lattice steps u, v
+    (K, 2): the steps to sample with and the samples along them (quad_levels' axes). Near the corners
+    (near given: NearQuads.steps) without the samples along the steps, which there fall on the
+    corner's own edges; else widely, with them (SEED_AXES)."""
+    if near is None:
+        return u, v, SEED_AXES
+    return (*near.steps(u, v), 0.0)
+
+
 @lru_cache(maxsize=4)
 def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     """np.triu_indices(n, 1), cached: the index pairs (i < j) of n neighbours."""
@@ -89,14 +99,13 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
     si, square, uu, vv, size = _candidate_squares(xy, seeds, neighbours, free)
     if len(si) == 0:
         return [none] * len(uneven)
-    if near is not None and near.dark:
-        return [dark_squares(sampler, xy, n_seeds, si, square, uu, vv, size)] * len(uneven)
     by_size = np.lexsort((size, si))  # each seed's squares, shortest first
     rank = np.empty(len(si), np.int64)
     rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
+    if near is not None and near.dark:
+        return [dark_squares(sampler, xy, n_seeds, si, square, uu, vv, by_size, rank)] * len(uneven)
     passed = np.zeros((len(uneven), len(si)), bool)
     g_sign, g_contrast = np.zeros(len(si)), np.zeros(len(si))
-    axes = SEED_AXES if near is None else 0.0  # near a corner, samples along the steps fall on its own edges
     first_round = rank < 3  # the image test is the costly part: the shortest squares first ...
     for second in (False, True):  # ... the rest only for the seeds whose shortest all failed
         if second:  # the squares of seeds none of whose squares passed yet (a lookup, not np.isin's sort)
@@ -107,9 +116,7 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
             t = np.nonzero(first_round)[0]
         if len(t) == 0:  # usually the second round: every seed passed with one of its shortest
             continue
-        su, sv = uu[t], vv[t]  # the steps the quads are sampled with
-        if near is not None:
-            su, sv = near.steps(su, sv)
+        su, sv, axes = uniform_sampling(near, uu[t], vv[t])  # the steps the quads are sampled with
         # many squares: the seed corner alone first (passing needs its 4 quad pairs to differ one way by MIN_CONTRAST)
         if len(t) > FEW_SQUARES:
             seed_diffs, seed_spread = quad_differences(sampler, xy[square[t, 0]], su, sv, SEED_REACH_UNIFORM, axes)
@@ -217,30 +224,31 @@ _EVEN_QUADS.setflags(write=False)
 
 
 def dark_squares(sampler: Sampler, xy: np.ndarray, n_seeds: int, si: np.ndarray, square: np.ndarray,
-                 uu: np.ndarray, vv: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, ...]:
+                 uu: np.ndarray, vv: np.ndarray, by_size: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, ...]:
     """seed_squares' result for a marked board whose markers leave too thin a light border to sample
     near the corners (NearQuads.dark; ccdn.grid, Markers), from the candidates of _candidate_squares
-    (each seed's 3 shortest): quads sampled widely, a square passes where its 8 dark quads (those of
-    one parity: the darker by their medians) are uniform (every sample range under DARK_SPREAD of the
-    contrast), its 8 light quads each hold a sample lighter than every dark quad's lightest by
-    DARK_GAP of it, and those quads' samples range over MARKED_SPREAD of it (markers; the contrast:
-    the light quads' lightest samples over the dark quads' medians, both their median, at least
-    DARK_CONTRAST). The seed corner is judged alone first (its light quads' lightest samples above
-    its dark ones')."""
-    by_size = np.lexsort((size, si))
-    rank = np.empty(len(si), np.int64)
-    rank[by_size] = np.arange(len(si)) - np.searchsorted(si[by_size], si[by_size])
+    (each seed's 3 shortest: rank; by_size their order): quads sampled widely, a square passes where
+    its 8 dark quads (those of one parity: the darker by their medians) are uniform (every sample
+    range under DARK_SPREAD of the contrast), its 8 light quads each hold a sample lighter than every
+    dark quad's lightest by DARK_GAP of it, and those quads' samples range over MARKED_SPREAD of it
+    (markers; the contrast: the light quads' lightest samples over the dark quads' medians, both
+    their median, at least DARK_CONTRAST). The seed corner is judged alone first (its light quads'
+    lightest samples above its dark ones')."""
     t = np.nonzero(rank < 3)[0]
-    lightest = quad_levels(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM, SEED_AXES)[2]
+    seed_levels = quad_levels(sampler, xy[square[t, 0]], uu[t], vv[t], SEED_REACH_UNIFORM, SEED_AXES)
+    lightest = seed_levels[2]
     own_max, own_min = np.fmax(lightest[0], lightest[3]), np.fmin(lightest[0], lightest[3])  # the seed's parity
     other_max, other_min = np.fmax(lightest[1], lightest[2]), np.fmin(lightest[1], lightest[2])
     with np.errstate(invalid="ignore"):  # NaN: a quad off the image
-        t = t[(own_max < other_min) | (other_max < own_min)]  # one parity's lightest samples under the other's
+        alternating = (own_max < other_min) | (other_max < own_min)  # one parity's lightest under the other's
+    t = t[alternating]
     passed, sign, contrast = np.zeros(len(si), bool), np.zeros(len(si)), np.zeros(len(si))
     if len(t):
-        middle, low, high = (part.reshape(4, len(t), 4).transpose(1, 2, 0)  # (squares, corner, quad)
-                             for part in quad_levels(sampler, xy[square[t].ravel()], np.repeat(uu[t], 4, 0),
-                                                     np.repeat(vv[t], 4, 0), SEED_REACH_UNIFORM, SEED_AXES))
+        others = quad_levels(sampler, xy[square[t, 1:].ravel()], np.repeat(uu[t], 3, 0), np.repeat(vv[t], 3, 0),
+                             SEED_REACH_UNIFORM, SEED_AXES)
+        middle, low, high = (np.concatenate([seed[:, alternating, None], rest.reshape(4, len(t), 3)], 2)
+                             .transpose(1, 2, 0)  # (squares, corner, quad)
+                             for seed, rest in zip(seed_levels, others))
         even = np.broadcast_to(_EVEN_QUADS, middle.shape)
         even_darker = (median(middle[even].reshape(len(t), 8), axis=1)
                        < median(middle[~even].reshape(len(t), 8), axis=1))
