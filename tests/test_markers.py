@@ -120,6 +120,20 @@ def test_markers_with_too_thin_a_light_border_seed_from_the_dark_squares(monkeyp
     assert ccdn.Detector(threads=2).detect(scene.image).boards == ()
 
 
+def test_a_marked_board_with_clean_dark_squares_needs_less_range_in_its_light_ones(monkeypatch):
+    """On the markers render 7170041 (README's sample: squares of ~11 px, whose sample boxes average a
+    marker's bits) the board the dark-square search grows has light quads whose samples range 0.498 of
+    the contrast more than its dark quads', where _marked asked 0.5, and it was lost whole. Its dark
+    quads are clean (their samples range 0.02 of it: ccdn.grid.CLEAN_DARK), so 0.4 suffices
+    (MARKED_CLEAN): found, 76 of its 77 corners, indexed as they are."""
+    pytest.importorskip("ccdn_training.synth")
+    scene = stress_scene("markers", 7_170_041)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [76] and true_board(boards[0], scene, 1.0)
+    monkeypatch.setattr("ccdn.grid.MARKED_CLEAN", ccdn.grid.MARKED)  # one bar, clean dark quads or not
+    assert ccdn.Detector(threads=2).detect(scene.image).boards == ()
+
+
 def test_calibrate_command_recovers_a_camera_from_charuco_views(tmp_path):
     """`ccdn calibrate` on ChArUco views of a known pinhole camera: its own board search (of the given
     size, on the detector's corners) looks for marked boards too."""

@@ -66,8 +66,10 @@ with markers: 28.8 -> 11.6 % missed, held out 10.3 -> 2.1 % and 13.8 -> 6.2 %, a
 apart into pieces before; their mean error 0.03-0.06 -> 0.05-0.06 px; fisheye close-ups, which the
 same search finds, 3-5 corners fewer missed; ~1800 other cached renders bit for bit the same). A
 board so found is kept only where its light quads do hold markers (_marked: their samples range
-much more than its dark quads'); a plain board it finds (e.g. one whose seed squares an occluder
-spoils) took outline points with it. Only frames where nothing else is found can change (stress
+much more than its dark quads', less where those are clean: MARKED_CLEAN, stress renders with
+markers 11.6 -> 4.6 % missed, 4.5 -> 3.9 % held out, OpenCV's ChArUco images 44 -> 45 of 54 boards,
+no plain board more); a plain board it finds (e.g. one whose seed squares an occluder spoils) took
+outline points with it. Only frames where nothing else is found can change (stress
 renders with markers, ccdn_training.synth's p_markers: 86 -> 29 % missed, held out 74-77 -> 10-12 %;
 OpenCV's ChArUco images: 21 -> 34 of 54 boards at 640x480, 3 -> 9 of 9 at 2000x1500; every frame
 with a board found before the same). Where markers leave a light border of a pixel or two (small
@@ -151,7 +153,13 @@ CLOSE_UP = 0.15  # of the frame's shorter side: a plain board the marker search 
 # squares of a close-up thin towards the rim: the longest tenth of the steps, not the median, tells it (40 fisheye
 # close-up renders of squares 100-200 px at the centre, seeds 9 000 000 on: 65.3 -> 47.2 % missed)
 MARKED = 0.5  # a board found so holds markers where its light quads' samples range this much more than its dark ones'
-# (of their contrast; _marked)
+# (of their contrast; _marked), ...
+MARKED_CLEAN = 0.4  # ... or this much where its dark quads are clean: their samples range under CLEAN_DARK of it.
+CLEAN_DARK = 0.05  # Of the 114 marked boards the marker search found in 140 renders with markers, the lowest at
+# 0.46 and 0.50 (small squares, whose boxes average a marker's bits; a steep board of faint markers), every one's
+# dark quads under 0.03; of the 362 plain boards it found (close-ups, fisheye close-ups, ~2000 stress renders), the
+# highest 0.49, 0.43, 0.42 (their dark quads 0.70, 0.11, 0.50: samples across other squares), of those with clean
+# dark quads 0.27
 SAMPLED_REACH = 4.0  # x the corners' median gap: how far around them find_boards' Sampler integrates the image
 # (ccdn.checker.Sampler; real-dev frames at 4000x3000: 12.3 -> 6.0 Mpx a frame; 2 and 3 grew the window more often)
 SHADE_SPREAD = 2.0  # a board lit more unevenly (ccdn.shade.light_spread) is searched for again, levelled: 1.5 found
@@ -477,8 +485,9 @@ def _close_up(board: Board, shape: tuple[int, ...], largest: float = 0.9) -> boo
 def _marked(sampler: Sampler, board: Board) -> bool:
     """Whether a board's light squares hold markers: over its corners (median), the range of the
     samples inside its light quads, less that inside its dark quads, exceeds MARKED of the contrast
-    between them (a seed's samples: ccdn.checker.quad_levels; the light quads are those whose
-    lightest samples are lighter). A plain board's quads are all uniform: ~0."""
+    between them, MARKED_CLEAN where the dark quads' samples range under CLEAN_DARK of it (a seed's
+    samples: ccdn.checker.quad_levels; the light quads are those whose lightest samples are
+    lighter). A plain board's quads are all uniform: ~0."""
     steps = lattice_steps(board)[:, [0, 2]]  # +col, +row
     stepped = np.isfinite(steps).all((1, 2))  # NaN: no neighbour along a row or a column
     _, low, high = quad_levels(sampler, board.xy[stepped].astype(np.float64), steps[stepped, 0], steps[stepped, 1],
@@ -486,9 +495,13 @@ def _marked(sampler: Sampler, board: Board) -> bool:
     spread = high - low  # (4 quads, K): own-parity quads 0 and 3, the others 1 and 2
     own, other = high[[0, 3]].mean(0), high[[1, 2]].mean(0)
     own_spread, other_spread = spread[[0, 3]].mean(0), spread[[1, 2]].mean(0)
-    excess = np.where(own > other, own_spread - other_spread, other_spread - own_spread)
-    known = np.isfinite(excess)
-    return bool(known.any() and median(excess[known]) > MARKED * median(np.abs(own - other)[known]))
+    light = own > other
+    light_spread, dark_spread = np.where(light, own_spread, other_spread), np.where(light, other_spread, own_spread)
+    known = np.isfinite(light_spread - dark_spread)
+    if not known.any():
+        return False
+    excess, contrast = median((light_spread - dark_spread)[known]), median(np.abs(own - other)[known])
+    return bool(excess > (MARKED_CLEAN if median(dark_spread[known]) < CLEAN_DARK * contrast else MARKED) * contrast)
 
 
 def _shaded_square(gray: np.ndarray, sampler: Sampler, boards: tuple[Board, ...]) -> float | None:
