@@ -36,6 +36,7 @@ named explicitly runs every pass itself.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import time
 
@@ -51,7 +52,7 @@ from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, m
 from .models import default_coarse_model
 from .peaks import best_near, find_peaks, kmeans_outliers, suppress
 from .regions import look_boxes
-from .refine import refine, refine_from_shrunk, window_for_spacing
+from .refine import refine, refine_from_neighbours, refine_from_shrunk, window_for_spacing
 from .result import Detection
 from .session import ScoreSession
 from .shade import across_shadows_edge, light_levels, light_spread, refined_across_shadows_edge
@@ -256,16 +257,21 @@ class Detector:
             refined, ok = refine_from_shrunk(gray, frame, xy, scale, radius, COARSE_MAX_SHIFT * scale)
         else:
             refined, ok = refine(gray, start, self.refinement, 2.0 * scale, radius)
+        failed, failed_values = start[~ok], values[~ok]
         refined, values = refined[ok], values[ok]
         distinct = suppress(refined, radius=1.0)  # refinement can move two peaks onto one corner
         refined, values = refined[distinct], values[distinct]
         clock.lap("refine")
+        more = None  # the failed fits retried, for the marker search alone (ccdn.grid, Markers)
+        if markers and scale == 1 and self.refinement == "saddle" and len(failed):
+            more = functools.partial(_retried_fits, gray, failed, failed_values, radius, refined)
         found: tuple[Board, ...] = ()
         if self.filter == "grid" or boards or board_size is not None:
             complete = self.filter == "grid"
             found = settled(find_boards(gray, refined, values, board_size, complete=complete,
                                         uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0,
-                                        shade_unfound=full_frame, markers=markers, close_ups=full_frame), gray.shape)
+                                        shade_unfound=full_frame, markers=markers, close_ups=full_frame, more=more),
+                            gray.shape)
             if complete:
                 refined, values = _with_completed(refined, values, found, score, scale)
             if complete or board_size is not None:
@@ -374,6 +380,20 @@ def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...
         extra[board.corner_index[new] - len(xy)] = board.xy[new]
     near = best_near(score, (extra + 0.5) / scale - 0.5)  # the 3x3 pixels of the pass's map around each
     return np.concatenate([xy, extra]), np.concatenate([values, near]).astype(np.float32)
+
+
+def _retried_fits(gray: np.ndarray, failed: np.ndarray, failed_values: np.ndarray, radius: int, refined: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The corners (xy, values) of the full frame's failed saddle fits (peaks `failed`, their scores)
+    that converge from their peak's diagonal neighbours (ccdn.refine.refine_from_neighbours), but those
+    within 1 px of a refined corner or of one another: corners the marker search alone may use (a
+    marker's border reaches the window of a corner whose peak lies on its light side; elsewhere such
+    retried fits land on clutter, markers' bits and, on steep boards, 1-1.7 px off corners that
+    completion fits right: 4 corners of 7100590 lost so, when the plain search used them too)."""
+    points, converged = refine_from_neighbours(gray, failed, radius, 1.0)
+    points, values = points[converged], failed_values[converged]
+    distinct = suppress(np.concatenate([refined, points]), radius=1.0)[len(refined):]
+    return points[distinct], values[distinct]
 
 
 def _light(gray: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:

@@ -77,7 +77,14 @@ squares, or markers of 0.7-0.8 of the square), no quad sampled near a corner is 
 that search finds no board, it runs once more with seed squares judged by their dark quads
 (MARKER_DARK, ccdn.seeds.dark_squares; stress renders with markers: held out 2.1 -> 1.7 % and 6.2 ->
 4.5 % missed, no false positive; OpenCV's ChArUco images 34 -> 44 of 54 boards; ~2400 other cached
-renders and frames bit for bit the same; boardless frames spend 4-6 % of their time on it). The same search finds
+renders and frames bit for bit the same; boardless frames spend 4-6 % of their time on it). On the
+full frame that search also takes the saddle fits that failed, retried from their peaks' diagonal
+neighbours (find_boards' more; ccdn.refine.refine_from_neighbours): a corner between two pixels
+whose peak lies on its light side, where the fit's window reaches a marker's border 2-3 px in
+(OpenCV's markers of 0.8 on 25 px squares: every other corner of the board), converges from the
+dark side (OpenCV's ChArUco images 45 -> 48 of 54 boards, stress renders with markers 4.6 / 1.7 /
+3.9 -> 2.1 / 1.6 / 3.5 % missed; only this search takes them: in the plain one such retried fits,
+most of them on clutter, took the place of corners completion fits right on steep boards). The same search finds
 close-ups: a few squares filling the
 frame, whose size perspective changes from one square to the next, so that the plain search's quads,
 sampled widely with one square's steps, cross into other squares; a plain board it finds is kept
@@ -119,6 +126,7 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -389,7 +397,8 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size: tuple[int, int] | None = None,
                 *, allow_partial: bool = False, complete: bool = False, uneven_seeds: int = 0,
-                shade_unfound: bool = False, markers: bool = False, close_ups: bool = False) -> tuple[Board, ...]:
+                shade_unfound: bool = False, markers: bool = False, close_ups: bool = False,
+                more: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None) -> tuple[Board, ...]:
     """Link corners into checkerboards: the boards found, largest first (ties: top, then left).
 
     gray: (H, W) uint8 image the corners come from. xy: (N, 2) corner positions (x, y), (0, 0) the
@@ -405,7 +414,9 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     markers: where no board is found, search again for a board with markers in its light squares
     (module docstring, Markers); close_ups (with markers): keep the plain boards of close-ups that
     search finds too, and link corners along their edges for the close-ups growth missed (module
-    docstring, Close-ups linked).
+    docstring, Close-ups linked). more (with markers): corners (xy, score) that search may use besides
+    xy, asked for only when it runs (the detector's failed saddle fits retried: module docstring,
+    Markers); the boards' corner_index past len(xy) then names these too, their positions in Board.xy.
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
@@ -434,9 +445,14 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
         if sum(map(len, again)) > sum(map(len, boards)):
             boards = again
     if markers and not boards:  # a ChArUco-style board or a close-up (module docstring, Markers)
+        marker_xy, marker_score, marker_neighbours, marker_gaps = xy, score, neighbours, gaps
+        if more is not None and len((extra := more())[0]):  # this search's corners besides xy (more)
+            marker_xy, marker_score = np.concatenate([xy, extra[0]]), np.concatenate([score, extra[1]])
+            marker_neighbours, dist2 = nearest_neighbours(marker_xy, SEED_REACH)
+            marker_gaps = np.sqrt(dist2[:, 0])
         for quads in (MARKER_QUADS, MARKER_DARK):  # the dark squares' seeds where the others find no board
-            found = _search(gray, sampler, xy, score, neighbours, gaps, board_size, allow_partial, complete,
-                            uneven_seeds, quads, plain_seeds=0)
+            found = _search(gray, sampler, marker_xy, marker_score, marker_neighbours, marker_gaps, board_size,
+                            allow_partial, complete, uneven_seeds, quads, plain_seeds=0)
             if found:
                 break
         boards = tuple(board for board in found

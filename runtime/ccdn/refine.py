@@ -11,6 +11,10 @@ rough pass, then the fine pass: peaks from a downscaled frame are fitted on that
 (`refine_from_shrunk`: a quarter of the pixels at half size), positions predicted by the grid with
 a `wide` pass (the same fit with a larger window on a more smoothed image, whose basin is wider).
 
+Where a fit fails, refine_from_neighbours fits again from the peak's 4 diagonal neighbours (ccdn.grid's
+marker search takes those fits: a corner between two pixels whose peak lies on the side where the
+window reaches a marker's border converges from the other side).
+
 `cornersubpix`: OpenCV's gradient-orthogonality refinement (one C call for all corners).
 Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 """
@@ -391,6 +395,31 @@ def refine_from_shrunk(gray: np.ndarray, shrunk: np.ndarray, xy: np.ndarray, sca
     fine, ok = refine_saddle_points(gray, begin, radius, 0.4 * radius, max_shift=max_shift)
     ok &= np.hypot(*(fine - start).T) <= max_shift
     return np.where(ok[:, None], fine, start).astype(np.float32), ok
+
+
+def refine_from_neighbours(gray: np.ndarray, starts: np.ndarray, radius: int, max_shift: float
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Saddle fits (refine_saddle_points, window `radius`) from the 4 diagonal neighbours of each start
+    (K, 2) whose own fit failed: a corner between two pixels whose score peak lies on its light side,
+    where the window reaches a marker's border a few px in (a ChArUco-style board: ccdn.grid, Markers),
+    converges from the dark side. Each start takes the converged fit nearest it, within max_shift of
+    it (a corner between two pixels lies 0.71 px from its peak pixel). Returns xy (K, 2) float32 (the
+    starts' own where none converged) and a converged mask (K,) bool."""
+    start = starts.astype(np.float64)
+    k = len(start)
+    # one call for all 4 neighbours (one smoothing of the frame's region); from a neighbour the fit may move
+    # the step back to the start and max_shift beyond it
+    fitted, ok = refine_saddle_points(gray, (start[None] + _DIAGONALS[:, None]).reshape(-1, 2), radius, 0.4 * radius,
+                                      max_shift=max_shift + np.sqrt(2))
+    fitted = fitted.reshape(4, k, 2)
+    distance = np.where(ok.reshape(4, k), np.hypot(*(fitted - start[None]).transpose(2, 0, 1)), np.inf)
+    nearest = distance.argmin(0)
+    converged = distance[nearest, np.arange(k)] <= max_shift
+    return np.where(converged[:, None], fitted[nearest, np.arange(k)], start).astype(np.float32), converged
+
+
+_DIAGONALS = np.array([[1.0, 1.0], [-1.0, -1.0], [1.0, -1.0], [-1.0, 1.0]])
+_DIAGONALS.setflags(write=False)
 
 
 def refine_cornersubpix(gray: np.ndarray, xy: np.ndarray, radius: int = 4, max_shift: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
