@@ -257,14 +257,14 @@ class Detector:
             refined, ok = refine_from_shrunk(gray, frame, xy, scale, radius, COARSE_MAX_SHIFT * scale)
         else:
             refined, ok = refine(gray, start, self.refinement, 2.0 * scale, radius)
-        failed, failed_values = start[~ok], values[~ok]
+        peak_values = values
         refined, values = refined[ok], values[ok]
         distinct = suppress(refined, radius=1.0)  # refinement can move two peaks onto one corner
         refined, values = refined[distinct], values[distinct]
         clock.lap("refine")
         more = None  # the failed fits retried, for the marker search alone (ccdn.grid, Markers)
-        if markers and scale == 1 and self.refinement == "saddle" and len(failed):
-            more = functools.partial(_retried_fits, gray, failed, failed_values, radius, refined)
+        if markers and scale == 1 and self.refinement == "saddle" and not ok.all():
+            more = functools.partial(_retried_fits, gray, start[~ok], peak_values[~ok], radius, refined)
         found: tuple[Board, ...] = ()
         if self.filter == "grid" or boards or board_size is not None:
             complete = self.filter == "grid"
