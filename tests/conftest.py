@@ -91,6 +91,12 @@ def no_holes(board, shape):
     return np.zeros((0, 2), np.int64), np.zeros((0, 2)), np.zeros((0, 4, 2))
 
 
+def as_fitted(gray, board):
+    """ccdn.outliers.off_lattice leaving every corner as it is (monkeypatch ccdn.detector.off_lattice with
+    it): each corner where the fits before it put it, to judge another mechanism alone."""
+    return board.xy, np.ones(len(board), bool)
+
+
 def no_growth_into_shade(gray, board, *rest):
     """ccdn.shaded.grown_into_shade growing nothing (monkeypatch ccdn.detector.grown_into_shade with
     it): a board kept without its part in deep shade, to judge another mechanism alone."""

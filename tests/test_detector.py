@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import ccdn
-from conftest import index_map, nearest_distances, no_growth_into_shade, no_holes, stress_scene, true_board
+from conftest import as_fitted, index_map, nearest_distances, no_growth_into_shade, no_holes, stress_scene, true_board
 
 
 def test_runtime_never_imports_torch_or_training_code():
@@ -558,6 +558,7 @@ def test_corners_on_a_shadows_edge_are_found_on_their_edge_lines(monkeypatch):
     monkeypatch.setattr("ccdn.completion.EVEN_EDGES", np.inf)  # no corner passes: the saddle fits alone ...
     monkeypatch.setattr("ccdn.detector.predicted_holes", no_holes)  # ... of the grid (21 with ccdn.holes' look
     monkeypatch.setattr("ccdn.detector.grown_into_shade", no_growth_into_shade)  # or with ccdn.shaded's growth)
+    monkeypatch.setattr("ccdn.detector.off_lattice", as_fitted)  # (ccdn.outliers fits one of them again: 21)
     assert (nearest_distances(ccdn.Detector(threads=2).detect(scene.image).xy, scene.corners) < 1.5).sum() <= 20
 
 
@@ -589,13 +590,14 @@ def test_a_board_across_a_soft_shadows_edge_is_found_on_the_levelled_frame(monke
     differ, and the corners along it fail the image tests on the grey and the log scale alike: in
     the stress set's shadow render 7160393 the board stopped at that edge, 29 of its 44 corners.
     A board lit that unevenly (ccdn.shade.light_spread above ccdn.grid.SHADE_SPREAD) is searched for
-    again on the frame divided by its light level (ccdn.shade.levelled): all 44, indexed as they
-    are, each within 1.2 px of its true place (without: 35 since prune keeps the corners whose other
-    neighbours the shadow hides, ccdn.cleanup.Cleanup._hidden_around)."""
+    again on the frame divided by its light level (ccdn.shade.levelled): 43, indexed as they are,
+    each within 0.5 px of its true place (the 44th, 1.2 px off, ccdn.outliers drops; without the
+    levelled frame: 35 since prune keeps the corners whose other neighbours the shadow hides,
+    ccdn.cleanup.Cleanup._hidden_around)."""
     scene = stress_scene("shadow", 7_160_393)
     found = ccdn.Detector(threads=2).detect(scene.image)
-    assert len(scene.corners) == 44 and len(found.boards) == 1 and len(found) == 44
-    assert nearest_distances(scene.corners, found.xy).max() < 1.2
+    assert len(scene.corners) == 44 and len(found.boards) == 1 and len(found) == 43
+    assert nearest_distances(scene.corners, found.xy).max() < 0.5
     board = found.boards[0]
     label = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2).argmin(1)
     assert index_map(board, scene.grid[label]) is not None
@@ -651,13 +653,14 @@ def test_a_boards_part_in_deep_shade_is_grown_from_the_network_on_the_levelled_f
     below its peak threshold and the board is found without them (28 missed). A shadow's edge runs
     across the found part's corners, so the board is grown outwards, into the shade and its
     penumbra, on the frame levelled around it (ccdn.shaded), where the network scores the shaded
-    corners like lit ones: 27 more, within 0.2 px of their labels, one board indexed as it is, no
-    false corner more (the one 1.6 px off a label is there either way)."""
+    corners like lit ones: all 28, 27 within 0.2 px of their labels, one board indexed as it is, no
+    false corner (one corner whose fit a penumbra pulls 1.6 px off ccdn.outliers fits again, with the
+    growth or without)."""
     scene = stress_scene("shadow", 7_160_855)
     found = ccdn.Detector(threads=2).detect(scene.image)
     assert len(scene.corners) == 156 and len(found.boards) == 1
     distance = nearest_distances(found.xy, scene.corners)
-    assert (distance >= 1.5).sum() == 1
+    assert (distance >= 1.5).sum() == 0
     board = found.boards[0]
     to_labels = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
     labelled = to_labels.min(1) < 1.5
@@ -665,10 +668,10 @@ def test_a_boards_part_in_deep_shade_is_grown_from_the_network_on_the_levelled_f
     monkeypatch.setattr("ccdn.detector.grown_into_shade", no_growth_into_shade)
     without = ccdn.Detector(threads=2).detect(scene.image).xy
     assert (nearest_distances(without, scene.corners) >= 1.5).sum() == 28
-    grown = (nearest_distances(without, scene.corners) >= 1.5) & (distance < 1.5)
-    assert grown.sum() == 27 and distance[grown].max() < 0.2
+    grown = (nearest_distances(without, scene.corners) >= 1.5) & (distance < 1.5)  # and the one fitted again
+    assert grown.sum() == 28 and (distance[grown] < 0.2).sum() == 27 and distance[grown].max() < 0.3
     false = (nearest_distances(scene.corners, found.xy) >= 1.5).sum()
-    assert false == (nearest_distances(scene.corners, without) >= 1.5).sum() == 1
+    assert false == (nearest_distances(scene.corners, without) >= 1.5).sum() == 0
 
 
 def test_a_small_board_that_a_shadow_keeps_from_seeding_is_found_on_the_levelled_frame(monkeypatch):
@@ -708,6 +711,7 @@ def test_corners_across_a_shadows_edge_are_fitted_again_on_the_levelled_frame(mo
     levelled = across_the_edge()
     assert len(levelled) >= 20 and levelled.mean() < 0.3
     monkeypatch.setattr("ccdn.detector.SHADE_SPREAD", np.inf)
+    monkeypatch.setattr("ccdn.detector.off_lattice", as_fitted)  # (ccdn.outliers fits 2 of them again: 0.54)
     assert across_the_edge().mean() > 0.6
 
 
@@ -750,19 +754,20 @@ def test_a_sliver_board_no_pass_links_is_found_stretched(monkeypatch):
     """The stress set's extreme-pose render 7100061: a board seen so steeply that its cells are sheared
     past what a lattice is grown over (sines 0.23-0.29 < ccdn.lattice.MIN_SINE) and its squares are 2-3 px
     across: no pass finds any of its 42 corners. The sliver-shaped cluster of score peaks there, looked
-    at stretched 3x across its long axis (ccdn.magnify.stretched), gives the whole board, every corner
-    within 1 px of the truth (measured: mean 0.14, max 0.51 px), indexed right; exhaustive detection,
-    which looks at clusters of any shape, finds the same."""
+    at stretched 3x across its long axis (ccdn.magnify.stretched), gives the board, every corner within
+    0.5 px of the truth, indexed right, but for one 0.51 px off that ccdn.outliers drops (off its
+    neighbours' local lattice; 41 of 42); exhaustive detection, which looks at clusters of any shape,
+    finds the same."""
     from ccdn import magnify
 
     scene = stress_scene("extreme-pose", 7_100_061)
     assert len(scene.corners) == 42
     for exhaustive in (False, True):
         found = ccdn.Detector(threads=2, exhaustive=exhaustive).detect(scene.image)
-        assert len(found.boards) == 1 and len(found.boards[0]) == 42
+        assert len(found.boards) == 1 and len(found.boards[0]) == 41
         board = found.boards[0]
         distance = np.linalg.norm(board.xy[:, None] - scene.corners[None], axis=2)
-        assert distance.min(1).max() < 1.0 and distance.min(1).mean() < 0.25
+        assert distance.min(1).max() < 0.5 and distance.min(1).mean() < 0.25
         assert index_map(board, scene.grid[distance.argmin(1)]) is not None
     monkeypatch.setattr(magnify, "MAX_LOOKS", 0)
     assert len(ccdn.Detector(threads=2).detect(scene.image).xy) == 0

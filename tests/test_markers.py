@@ -15,7 +15,7 @@ from ccdn.growth import Grower
 from ccdn.lattice import distances
 from ccdn.refine import refine_from_neighbours, refine_saddle_points
 from ccdn.seeds import SEED_REACH, seed_squares
-from conftest import stress_scene, true_board
+from conftest import as_fitted, stress_scene, true_board
 
 SQUARE, MARGIN, COLS, ROWS = 60, 60, 10, 7  # squares; inner corners (COLS - 1) x (ROWS - 1)
 WARP = np.float32([[40, 30], [600, 60], [620, 450], [10, 420]])  # where the board image's corners go in a 640x480 view
@@ -92,6 +92,7 @@ def test_a_marked_boards_crowded_corners_are_judged_near_them(monkeypatch):
     ccdn loses in README.md.)"""
     pytest.importorskip("ccdn_training.synth")
     monkeypatch.setattr("ccdn.detector._retried_fits", lambda *args: (np.zeros((0, 2)), np.zeros(0)))
+    monkeypatch.setattr("ccdn.detector.off_lattice", as_fitted)  # growth alone: ccdn.outliers left out
     scene = stress_scene("markers", 7_170_329)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert [len(board) for board in boards] == [154] and true_board(boards[0], scene, 1.0)

@@ -50,6 +50,7 @@ from .holes import filled_holes, hole_boxes, predicted_holes, settled
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region, thinnest
 from .models import default_coarse_model
+from .outliers import off_lattice
 from .peaks import best_near, find_peaks, kmeans_outliers, suppress
 from .regions import look_boxes
 from .refine import refine, refine_from_neighbours, refine_from_shrunk, window_for_spacing
@@ -199,7 +200,7 @@ class Detector:
         lights = None
         if self._saddle_boards and not self.fast_check:
             xy, values, found, lights = self._grown_into_shade(gray, xy, values, found, board_size, clock)
-        xy, found = self._on_edges(gray, xy, found, clock, lights)
+        xy, values, found = self._on_edges(gray, xy, values, found, clock, lights)
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
                          found, clock.laps)
 
@@ -359,13 +360,16 @@ class Detector:
         more_found = tuple(dataclasses.replace(b, xy=_read_only(from_view(b.xy, to_frame))) for b in more_found)
         return _keep_board_corners(*merge(xy, values, found, from_view(more_xy, to_frame), more_values, more_found))
 
-    def _on_edges(self, gray: np.ndarray, xy: np.ndarray, found: tuple[Board, ...], clock: _Clock, lights=None):
-        """xy and boards, the boards' corners refined on their edge lines where the grid filter completed
-        them and the saddle fit refined them (_refined_on_edges; lights: each board's _light, where known)."""
+    def _on_edges(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
+                  clock: _Clock, lights=None):
+        """xy, values and boards, the boards' corners refined on their edge lines where the grid filter
+        completed them and the saddle fit refined them (_refined_on_edges; lights: each board's _light,
+        where known), then their lattice outliers fitted again or dropped (_without_off_lattice)."""
         if self._saddle_boards and found:
             xy, found = _refined_on_edges(gray, xy, found, image_noise(gray) >= NOISY_SIGMA, lights)
+            xy, values, found = _without_off_lattice(gray, xy, values, found)
             clock.lap("edges")
-        return xy, found
+        return xy, values, found
 
 
 def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...], score: np.ndarray, scale: int):
@@ -424,6 +428,21 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
         board_xy.setflags(write=False)
         refined.append(dataclasses.replace(board, xy=board_xy))
     return xy, tuple(refined)
+
+
+def _without_off_lattice(gray: np.ndarray, xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):
+    """xy, values and boards with each flat board's lattice outliers fitted again, or dropped where
+    neither fit confirms them (ccdn.outliers)."""
+    xy, kept, dropped = xy.copy(), [], False
+    for board in boards:
+        board_xy, keep = off_lattice(gray, board)
+        xy[board.corner_index] = board_xy
+        if board_xy is not board.xy or not keep.all():  # the board keeps its extent (off_lattice)
+            board = dataclasses.replace(board, corner_index=_read_only(board.corner_index[keep]),
+                                        grid=_read_only(board.grid[keep]), xy=_read_only(board_xy[keep]))
+            dropped |= not keep.all()
+        kept.append(board)
+    return _keep_board_corners(xy, values, tuple(kept)) if dropped else (xy, values, tuple(kept))
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
