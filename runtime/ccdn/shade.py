@@ -89,11 +89,12 @@ def across_shadows_edge(levels: np.ndarray, ratio: float = SHADOW_EDGE) -> np.nd
     return lighter > ratio  # NaN (no steps, quads off the frame): not
 
 
-def refined_across_shadows_edge(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def refined_across_shadows_edge(gray: np.ndarray, xy: np.ndarray, steps: np.ndarray, saddle: bool = True
+                                ) -> tuple[np.ndarray, np.ndarray]:
     """Board corners xy (M, 2) across a shadow's edge (across_shadows_edge; lattice steps (M, 4, 2))
-    refined on the levelled frame (made around them only): the saddle fit, then their edge lines
-    (ccdn.edges), where the shadow's slope no longer pulls either. Returns xy (M, 2) float32 and
-    whether each moved."""
+    refined on the levelled frame (made around them only): the saddle fit (unless not `saddle`), then
+    their edge lines (ccdn.edges), where the shadow's slope no longer pulls either. Returns xy (M, 2)
+    float32 and whether each moved."""
     if len(xy) == 0:
         return np.zeros((0, 2), np.float32), np.zeros(0, bool)
     square = median_step(steps)
@@ -105,8 +106,11 @@ def refined_across_shadows_edge(gray: np.ndarray, xy: np.ndarray, steps: np.ndar
     flat = levelled(gray[y0 : y1 + 1, x0 : x1 + 1], square)
     radius = window_for_spacing(square)
     start = xy - origin
-    fitted, converged = refine_saddle_points(flat, start, radius, 0.4 * radius, max_shift=SHADE_SHIFT)
-    on_edges, moved = refine_on_edges(flat, np.where(converged[:, None], fitted, start), steps)
+    begin, converged = start, np.zeros(len(xy), bool)
+    if saddle:
+        fitted, converged = refine_saddle_points(flat, start, radius, 0.4 * radius, max_shift=SHADE_SHIFT)
+        begin = np.where(converged[:, None], fitted, start)
+    on_edges, moved = refine_on_edges(flat, begin, steps)
     return (on_edges + origin).astype(np.float32), converged | moved
 
 
