@@ -80,14 +80,14 @@ def moved(board, index: int, shift: tuple[float, float]):
 
 def test_a_board_on_its_lattice_comes_back_as_it_is(board_photo):
     gray, board = board_photo
-    xy, keep = off_lattice(gray, board)
+    xy, keep = off_lattice(gray, board, lattice_steps(board))
     assert xy is board.xy and keep.all()
 
 
 def test_a_corner_moved_off_the_lattice_is_fitted_back_onto_its_corner(board_photo):
     gray, board = board_photo
     inner = int(np.nonzero((board.grid[:, 0] == 2) & (board.grid[:, 1] == 3))[0][0])
-    xy, keep = off_lattice(gray, moved(board, inner, (1.6, -1.2)))
+    xy, keep = off_lattice(gray, moved(board, inner, (1.6, -1.2)), lattice_steps(board))
     assert keep.all() and np.linalg.norm(xy[inner] - board.xy[inner]) < 0.1
     others = np.arange(len(board)) != inner
     assert np.array_equal(xy[others], board.xy[others])
@@ -100,5 +100,5 @@ def test_a_corner_off_the_lattice_where_the_image_shows_none_is_dropped(board_ph
     half = int(0.6 * median_step(lattice_steps(board)))  # the corner's quads and half-edges, painted over
     blank = gray.copy()
     blank[y - half : y + half + 1, x - half : x + half + 1] = int(np.median(gray))
-    _, keep = off_lattice(blank, moved(board, inner, (1.6, -1.2)))
+    _, keep = off_lattice(blank, moved(board, inner, (1.6, -1.2)), lattice_steps(board))
     assert np.nonzero(~keep)[0].tolist() == [inner]

@@ -366,8 +366,8 @@ class Detector:
         completed them and the saddle fit refined them (_refined_on_edges; lights: each board's _light,
         where known), then their lattice outliers fitted again or dropped (_without_off_lattice)."""
         if self._saddle_boards and found:
-            xy, found = _refined_on_edges(gray, xy, found, image_noise(gray) >= NOISY_SIGMA, lights)
-            xy, values, found = _without_off_lattice(gray, xy, values, found)
+            xy, found, steps = _refined_on_edges(gray, xy, found, image_noise(gray) >= NOISY_SIGMA, lights)
+            xy, values, found = _without_off_lattice(gray, xy, values, found, steps)
             clock.lap("edges")
         return xy, values, found
 
@@ -412,11 +412,13 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
     on a noisy frame, else those on straight lines; on a board under a shadow (ccdn.shade.light_spread
     above ccdn.grid.SHADE_SPREAD) the corners a shadow's edge runs across first get the saddle fit
     again on the levelled frame (ccdn.shade.refined_across_shadows_edge), where its slope no longer
-    pulls them (100 shadow renders: ~850 such corners, 0.31 -> 0.15 px off the truth on average)."""
+    pulls them (100 shadow renders: ~850 such corners, 0.31 -> 0.15 px off the truth on average).
+    Also each board's lattice steps, as measured before (the lattice outliers' stage takes them)."""
     xy = xy.copy()
-    refined = []
+    refined, measured = [], []
     for board, light in zip(boards, lights or [None] * len(boards)):
         steps, levels = light or _light(gray, board)
+        measured.append(steps)
         chosen = np.ones(len(board), bool) if noisy else on_straight_lines(board, steps)
         board_xy, moved = board.xy.copy(), np.zeros(len(board), bool)  # unmoved corners keep their place
         board_xy[chosen], moved[chosen] = refine_on_edges(gray, board.xy[chosen], steps[chosen])
@@ -427,17 +429,18 @@ def _refined_on_edges(gray: np.ndarray, xy: np.ndarray, boards: tuple[Board, ...
         xy[board.corner_index[moved]] = board_xy[moved]
         board_xy.setflags(write=False)
         refined.append(dataclasses.replace(board, xy=board_xy))
-    return xy, tuple(refined)
+    return xy, tuple(refined), measured
 
 
-def _without_off_lattice(gray: np.ndarray, xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...]):
+def _without_off_lattice(gray: np.ndarray, xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...],
+                         steps: list[np.ndarray]):
     """xy, values and boards with each flat board's lattice outliers fitted again, or dropped where
-    neither fit confirms them (ccdn.outliers)."""
+    no fit confirms them (ccdn.outliers; steps: each board's lattice steps)."""
     xy, kept, dropped = xy.copy(), [], False
-    for board in boards:
-        board_xy, keep = off_lattice(gray, board)
-        xy[board.corner_index] = board_xy
+    for board, board_steps in zip(boards, steps):
+        board_xy, keep = off_lattice(gray, board, board_steps)
         if board_xy is not board.xy or not keep.all():  # the board keeps its extent (off_lattice)
+            xy[board.corner_index] = board_xy
             board = dataclasses.replace(board, corner_index=_read_only(board.corner_index[keep]),
                                         grid=_read_only(board.grid[keep]), xy=_read_only(board_xy[keep]))
             dropped |= not keep.all()

@@ -50,12 +50,14 @@ _NEIGHBOURS = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr
 _NEIGHBOURS.setflags(write=False)
 
 
-def off_lattice(gray: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:
+def off_lattice(gray: np.ndarray, board: Board, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A board's corner positions (M, 2) float32 with its lattice outliers (module docstring) fitted
     again, and which corners to keep (M,) bool (not the outliers that no fit lands near and the
     plain fit does not return to, but a corner alone in its row or column of the board, so that
     dropping never shrinks the board's extent). Boards that are not flat, or under 9 corners, come
-    back as they are (the same array)."""
+    back as they are (the same array). steps: the board's lattice steps (M, 4, 2) (ccdn.edges.lattice_steps;
+    the edge stage's, measured before it moved the corners: they set the flatness test's and the fit's
+    scale only)."""
     xy = board.xy.astype(np.float64)
     keep = np.ones(len(board), bool)
     if len(board) < 9:
@@ -66,7 +68,6 @@ def off_lattice(gray: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]
         return board.xy, keep
     on_lattice = cv2.perspectiveTransform(grid[None, :, ::-1].astype(np.float64), homography)[0]
     offset = xy - on_lattice
-    steps = lattice_steps(board)
     if not median(vector_lengths(offset)) < FLAT * median_step(steps):
         return board.xy, keep
     canvas = np.full((*(grid.max(0) + 3), 2), np.nan)  # the offsets on the grid, a NaN margin around
