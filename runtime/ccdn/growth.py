@@ -265,12 +265,8 @@ class Grower(Completion, Cleanup, Bridging):
                 shaded = (contrast < SHADED_CONTRAST) | (contrast > 1 / SHADED_CONTRAST)
                 ok[again] = self._alternate(levels, sign[again], strict) & shaded
             return ok & on_image & square
-        # the second chance (module docstring), sampled in the same call: one quad may be hidden,
-        # the corner's surroundings may not
         k = len(points)
-        levels = quad_levels(self.sampler, np.concatenate([points, points]), np.concatenate([u, NEAR_QUADS * u]),
-                             np.concatenate([v, NEAR_QUADS * v]))
-        far = tuple(part[:, :k] for part in levels)
+        far = quad_levels(self.sampler, points, u, v)
         plain = self._alternate(far, sign, False)
         # crowded points: quads uniform where a seed's are sampled (a NaN contrast does not refuse), or no pass
         # and no second chance either: the second chance passes a corner of a denser lattice around itself
@@ -284,8 +280,9 @@ class Grower(Completion, Cleanup, Bridging):
         far_diffs = pair_differences(far[0]) * sign[:, None]
         three = (np.fmin.reduce(far_diffs[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
         retry = ~plain & ~mixed & three
-        if retry.any():  # the second chance, for the points with three quads that failed the plain test
-            near = tuple(part[:, k:][:, retry] for part in levels)
+        if retry.any():  # the second chance (module docstring), for the points with three quads that failed
+            # the plain test: one quad may be hidden, the corner's surroundings may not
+            near = quad_levels(self.sampler, points[retry], NEAR_QUADS * u[retry], NEAR_QUADS * v[retry])
             plain[retry] = self._alternate(near, sign[retry], True)
         return plain & square
 
@@ -518,7 +515,11 @@ class Grower(Completion, Cleanup, Bridging):
     def _jump_holes(self, targets: np.ndarray, support: tuple[np.ndarray, ...]) -> bool:
         """Take free corners at the positions beyond the frontier (_beyond): across a one-corner hole."""
         preds, tols = support[:2]
-        return len(targets) > 0 and bool(self._take(targets, preds, tols, *self._axes(targets)).any())
+        if len(targets) == 0 or (nearest := self._nearest_free(preds)) is None:
+            return False
+        near = nearest[1] < tols  # only these can take a corner (_match): the steps are wanted for them alone
+        return bool(near.any()) and bool(self._take(targets[near], preds[near], tols[near],
+                                                    *self._axes(targets[near])).any())
 
     def _beyond(self, cells: np.ndarray, support: tuple[np.ndarray, ...]):
         """Positions two steps beyond the frontier `cells` (with their _support) along a row or column,
