@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdn.grid import Board
+from ccdn.board import Board
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -66,7 +66,7 @@ ROTATIONS = [np.array(m) for m in ([[1, 0], [0, 1]], [[0, -1], [1, 0]], [[-1, 0]
 
 
 def index_map(board, true_grid: np.ndarray) -> np.ndarray | None:
-    """The proper rotation R with found = R @ true + offset for every corner of a ccdn.grid.Board
+    """The proper rotation R with found = R @ true + offset for every corner of a ccdn.board.Board
     (true_grid: its corners' true (row, col)), or None if there is none."""
     for rot in ROTATIONS:
         offset = board.grid - true_grid @ rot.T

@@ -610,7 +610,7 @@ def test_a_board_across_a_soft_shadows_edge_is_found_on_the_levelled_frame(monke
 def test_the_holes_the_halved_frame_leaves_in_a_board_are_filled_at_full_resolution(monkeypatch):
     """In the stress set's occluded render 7140776 (fresh renders, seeds from the 60th on) the halved
     frame's pass finds the board without two corners inside it, next to occluders' edges (holes:
-    ccdn.grid.hole_cells), which the full-resolution network peaks on. Scored only around the holes,
+    ccdn.board.hole_cells), which the full-resolution network peaks on. Scored only around the holes,
     its peaks' fits fill them (ccdn.holes): all 61 corners, one board indexed as it is, each within
     0.1 px of its label (the two 0.03 and 0.04 px); without (HOLE_SCORE infinite) 59."""
     scene = stress_scene("occluded", 7_140_776)

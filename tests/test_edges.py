@@ -95,7 +95,7 @@ def test_curved_and_thin_boards_keep_the_saddle_fit(detector):
 
 
 def test_lattice_steps_mirror_missing_neighbours():
-    from ccdn.grid import Board
+    from ccdn.board import Board
 
     grid = np.array([(r, c) for r in range(2) for c in range(3)], np.int32)
     xy = (grid[:, ::-1] * [10.0, 12.0] + [5, 7]).astype(np.float32)

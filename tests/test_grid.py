@@ -10,7 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from ccdn.grid import Board, find_boards, hole_cells
+from ccdn.board import Board, hole_cells
+from ccdn.grid import find_boards
 from conftest import REAL_DEV, index_map, nearest_distances, render, stress_scene, true_board, whole_boards
 
 synth = pytest.importorskip("ccdn_training.synth")

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from ccdn.checker import Sampler
-from ccdn.grid import Board, find_boards, nearest_neighbours
+from ccdn.board import Board
+from ccdn.grid import find_boards, nearest_neighbours
 from ccdn.growth import AMBIGUOUS, Grower
 from conftest import as_fitted, index_map, nearest_distances, no_holes, stress_scene, true_board, true_part, whole_boards
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ccdn.edges import lattice_steps
-from ccdn.grid import SHADE_SPREAD, Board
+from ccdn.board import Board
+from ccdn.grid import SHADE_SPREAD
 from ccdn.shade import across_shadows_edge, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from conftest import stress_scene
 

@@ -13,7 +13,7 @@ from importlib import import_module
 __version__ = "0.1.0"
 
 _PUBLIC = {
-    "Detector": "detector", "detect": "detector", "Detection": "result", "Board": "grid",
+    "Detector": "detector", "detect": "detector", "Detection": "result", "Board": "board",
     "ImageError": "image", "ModelError": "models", "available_models": "models",
 }
 __all__ = sorted(_PUBLIC) + ["__version__"]

@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .grid import Board
+from .board import Board
 from .writers import write_atomic
 
 MODELS = ("pinhole", "fisheye")

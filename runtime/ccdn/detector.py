@@ -45,7 +45,8 @@ import numpy as np
 
 from .checker import NOISY_SIGMA, image_noise
 from .edges import lattice_steps, on_straight_lines, refine_on_edges
-from .grid import SHADE_SPREAD, Board, find_boards, nearest_neighbours, with_corners
+from .board import Board, with_corners
+from .grid import SHADE_SPREAD, find_boards, nearest_neighbours
 from .holes import filled_holes, hole_boxes, predicted_holes, settled
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
 from .magnify import from_view, loose_clusters, magnified, magnified_to_frame, merge, stretched, thin_region, thinnest
@@ -282,7 +283,7 @@ class Detector:
 
     def _filled_holes(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
                       clock: _Clock):
-        """xy, values and boards with the holes a shrunk pass left in its boards (ccdn.grid.hole_cells)
+        """xy, values and boards with the holes a shrunk pass left in its boards (ccdn.board.hole_cells)
         filled from the full-resolution network's peaks, scored only around them (ccdn.holes)."""
         holes = [predicted_holes(board, gray.shape) for board in found]
         boxes = [box for _, preds, steps in holes for box in hole_boxes(preds, steps, gray.shape)]

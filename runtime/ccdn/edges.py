@@ -32,17 +32,15 @@ Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 
+from .board import Board
 from .checker import altitude
 from .refine import kernel_size
 from .stats import median, nanmedian_rows, vector_lengths
-
-if TYPE_CHECKING:  # ccdn.grid fits corners on their edges too: imported at run time, Board would be circular
-    from .grid import Board
 
 SMOOTHING = 1.0  # px, Gaussian sigma of the image the profiles are sampled on
 REACH = (0.1, 0.5)  # profiles from this far to this far along each half-edge (x the step to the neighbour)

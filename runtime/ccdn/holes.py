@@ -2,7 +2,7 @@
 
 Where an occluder's or a shadow's edge runs along a board's corners, the network on the shrunk
 frame often misses them while it finds the board: positions the board holds on two sides or more
-along their row and column (ccdn.grid.hole_cells: inside it, or in a notch of its outline) where
+along their row and column (ccdn.board.hole_cells: inside it, or in a notch of its outline) where
 the image tests of ccdn.grid fail, since something covers part of the corner's quads. The
 full-resolution network still peaks on most of them (the 1300 cached stress renders: of the 79
 corners the occluded, shadow and two-boards renders missed inside boards the halved frame's pass
@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 
 from .edges import lattice_steps
-from .grid import MIN_CORNERS, SHADE_SPREAD, Board, hole_cells, indexed_board, largest_first, with_corners
+from .board import Board, hole_cells, indexed_board, largest_first, with_corners
+from .grid import MIN_CORNERS, SHADE_SPREAD
 from .lattice import inside_margin
 from .peaks import best_near, best_peak
 from .refine import refine, window_for_spacing
@@ -40,7 +41,7 @@ NEAR_CELLS = 2  # a hole's prediction: a homography fitted to the board's corner
 
 
 def predicted_holes(board: Board, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The holes (ccdn.grid.hole_cells) of a board in a frame of `shape` (H, W), predicted
+    """The holes (ccdn.board.hole_cells) of a board in a frame of `shape` (H, W), predicted
     (predicted_cells)."""
     return predicted_cells(board.grid, board.xy, hole_cells(board), shape)
 

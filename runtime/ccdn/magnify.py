@@ -27,7 +27,7 @@ import numpy as np
 
 from .checker import altitude
 from .edges import lattice_steps
-from .grid import Board, largest_first
+from .board import Board, largest_first
 from .stats import median
 
 MAGNIFICATION = 2

@@ -23,18 +23,15 @@ local predictions (a Python loop) are made for the few candidates only: none on 
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from .board import Board
 from .edges import lattice_steps, median_step
 from .refine import refine_saddle_points, window_for_spacing
 from .shade import refined_across_shadows_edge
 from .stats import median, nanmedian_rows, vector_lengths
-
-if TYPE_CHECKING:  # ccdn.grid imports ccdn.edges, which this module does too
-    from .grid import Board
 
 FLAT = 0.02  # of the median lattice step: a board whose homography residual's median is under this is flat here
 # (ccdn.edges.FLAT_BOARD, 0.01, leaves out a noisy frame's boards, 0.014, and steep ones, 0.018: 14 corners 0.5-5 px

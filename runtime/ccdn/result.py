@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .grid import Board
+    from .board import Board
 
 
 def _frozen(a: np.ndarray, dtype, shape_tail: tuple[int, ...]) -> np.ndarray:
@@ -28,7 +28,7 @@ class Detection:
     response there, so `score >= t` keeps only corners the network itself is that sure of.
     Corners are sorted by descending score, ties by (y, x); no corners gives arrays of length 0.
     image_size: (width, height) of the input; model: name and version of the model used.
-    boards: the checkerboards the corners form (ccdn.grid.Board, indices into xy), largest first;
+    boards: the checkerboards the corners form (ccdn.board.Board, indices into xy), largest first;
     empty unless asked for (Detector.detect(..., boards=True)).
     """
 

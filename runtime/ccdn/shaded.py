@@ -33,7 +33,8 @@ import numpy as np
 
 from .checker import Sampler, quad_differences
 from .edges import median_step
-from .grid import SHADE_SPREAD, Board, reoriented, with_corners
+from .board import Board, reoriented, with_corners
+from .grid import SHADE_SPREAD
 from .growth import PAIR_RATIO
 from .holes import hole_boxes, peak_fits, placed, predicted_cells, shorter_step
 from .lattice import row_col_neighbours
@@ -51,7 +52,7 @@ def grown_into_shade(gray: np.ndarray, board: Board, steps: np.ndarray, levels: 
     """The board (its lattice steps (M, 4, 2: ccdn.edges.lattice_steps) and its corners' light
     levels (4, M: ccdn.shade.light_levels)) grown into the deep shade next to it (module docstring)
     where a shadow's edge runs across its corners: the board, its new corners indexed from len(taken)
-    on and its indices oriented again (ccdn.grid.reoriented; unchanged where it no longer fits
+    on and its indices oriented again (ccdn.board.reoriented; unchanged where it no longer fits
     board_size), their positions (F, 2) and scores (F,: the network's, on the levelled frame).
     taken: (N, 2) the corners found so far, which no new one may lie within half a step of."""
     none = board, np.zeros((0, 2), np.float32), np.zeros(0, np.float32)

@@ -1,0 +1,138 @@
+"""Board: one checkerboard's corners with their (row, col) indices, and how those are oriented.
+
+Orientation (deterministic, in this order):
+1. Never mirrored: +col x +row > 0 in image coordinates (x right, y down), like +x, +y.
+2. Which grid axis is "col": the one fixed by `board_size` when it is given and not square;
+   otherwise the axis whose image direction is nearer to horizontal.
+3. Which of the two 180-degree-rotated labellings: the one whose quad at (0, 0) (between corners
+   (0, 0) and (1, 1)) is light in the image, as cv2.findChessboardCornersSB orders corners (it is
+   also right-handed), so that both give the same indices. This decides only when cols + rows is
+   odd, e.g. 9 x 6: such a full board's (0, 0) is then the same physical corner in every view
+   (unless the board is printed inverted). When cols + rows is even the pattern is symmetric and
+   the labelling with +col pointing to image +x is taken, so the same physical corner is not
+   guaranteed across views (harmless for calibration: the labellings differ by a rotation of the
+   board).
+A partial board's indices start at 0 at its first found row and column, not at the true board's.
+
+Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lattice import held_on_two_sides
+from .stats import vector_lengths
+
+_ROTATIONS = (((1, 0), (0, 1)), ((0, -1), (1, 0)), ((-1, 0), (0, -1)), ((0, 1), (-1, 0)))  # the 4 proper
+# rotations of grid indices, (new_row, new_col) = M (row, col)
+
+
+@dataclass(frozen=True)
+class Board:
+    """One board: its corners' indices into the detection's xy, their (row, col) and positions.
+
+    corner_index: (M,) int64; grid: (M, 2) int32 (row, col), row-major order; xy: (M, 2) float32.
+    cols, rows: the grid's extent (max index + 1); a missing corner inside it is a hole.
+    """
+
+    corner_index: np.ndarray
+    grid: np.ndarray
+    xy: np.ndarray
+    cols: int
+    rows: int
+
+    def __len__(self) -> int:
+        return len(self.corner_index)
+
+    def to_dict(self) -> dict:
+        return {"cols": self.cols, "rows": self.rows, "corners": self.corner_index.tolist(),
+                "grid": self.grid.tolist()}
+
+
+def hole_cells(board: Board) -> np.ndarray:
+    """(K, 2) (row, col) of the board's missing corners next to LOOSE_NEIGHBOURS or more of its own
+    along their row and column: inside the board or in a notch of its outline, where something hid
+    them (an occluder's or a shadow's edge, or a pass that saw them too coarsely); beyond a straight
+    outline, where a board simply ends, a position has one."""
+    filled = np.zeros((board.rows, board.cols), bool)
+    filled[board.grid[:, 0], board.grid[:, 1]] = True
+    return held_on_two_sides(filled)
+
+
+def largest_first(boards) -> list[Board]:
+    """Boards ordered largest first; ties: top, then left (their corners' mean position)."""
+    return sorted(boards, key=lambda b: (-len(b), float(b.xy[:, 1].mean()), float(b.xy[:, 0].mean())))
+
+
+def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) -> Board:
+    """The board with corners at cells (F, 2) (inside its extent, or past it: then reoriented) and
+    positions xy (F, 2) added, indexed from `first` on."""
+    return indexed_board(np.concatenate([board.corner_index, np.arange(first, first + len(cells))]),
+                          np.concatenate([board.grid, cells]), np.concatenate([board.xy, xy]))
+
+
+def reoriented(board: Board, sign: float, board_size: tuple[int, int] | None = None) -> Board | None:
+    """The board indexed from 0 and oriented again (module docstring), for a
+    grid that grew past its extent (indices below 0 or beyond cols / rows); sign: + where the quads
+    of even row + col of its grid are light. None where it no longer fits board_size."""
+    grid = oriented_grid(board.grid.astype(np.int64), board.xy, sign, board_size, False)
+    return None if grid is None else indexed_board(board.corner_index, grid, board.xy)
+
+
+def indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Board:
+    """The read-only Board of corners idx (M,) at (row, col) grid (M, 2) from 0, positions points
+    (M, 2), in row-major order."""
+    order = np.lexsort((grid[:, 1], grid[:, 0]))
+    idx, grid = idx[order], grid[order].astype(np.int32)
+    board = Board(idx, grid, points[order].astype(np.float32), int(grid[:, 1].max() + 1), int(grid[:, 0].max() + 1))
+    for a in (board.corner_index, board.grid, board.xy):
+        a.setflags(write=False)
+    return board
+
+
+def oriented_grid(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,
+                  allow_partial: bool) -> np.ndarray | None:
+    """(row, col) (M, 2) of a grid (M, 2) with positions xy (M, 2) in the documented orientation (module
+    docstring; sign: + where the quads of even row + col are light), or None if the board does not fit
+    board_size (cols, rows), or with allow_partial within it."""
+    rows, cols = grid[:, 0] - grid[:, 0].min(), grid[:, 1] - grid[:, 1].min()
+    canvas = np.full((rows.max() + 2, cols.max() + 2), -1, np.int64)
+    canvas[rows, cols] = np.arange(len(grid))
+
+    def mean_step(dr: int, dc: int) -> np.ndarray:
+        """The mean unit step in the image from each corner to its (row + dr, col + dc) neighbour."""
+        neighbour = canvas[rows + dr, cols + dc]
+        has = neighbour >= 0
+        steps = xy[neighbour[has]] - xy[has]
+        return (steps / vector_lengths(steps)[:, None]).mean(0)
+
+    col_dir, row_dir = mean_step(0, 1).tolist(), mean_step(1, 0).tolist()
+    (r_min, c_min), (r_max, c_max) = grid.min(0).tolist(), grid.max(0).tolist()
+    extremes = ((r_min, c_min), (r_max, c_max))
+    ref_light = sign > 0  # the quad between internal corners (0, 0) and (1, 1) has even parity
+    best, best_key = None, None
+    for (a, b), (c, d) in _ROTATIONS:  # scalar arithmetic: a handful of numbers per rotation
+        rs, cs = [a * r + b * q for r, q in extremes], [c * r + d * q for r, q in extremes]
+        r0, c0 = min(rs), min(cs)
+        n_rows, n_cols = max(rs) - r0 + 1, max(cs) - c0 + 1
+        if board_size is not None:
+            bc, br = board_size
+            fits = (n_cols, n_rows) == (bc, br) or (allow_partial and n_cols <= bc and n_rows <= br)
+            if not fits:
+                continue
+        # the quad (0, 0)-(1, 1) rotated: its new top-left corner's parity relative to the new origin
+        origin_light = ((min(0, a, b, a + b) - r0 + min(0, c, d, c + d) - c0) % 2 == 0) == ref_light
+        # the image directions of the new +col and +row: (r, c) = M^T (new_r, new_c)
+        new_col = (c * row_dir[0] + d * col_dir[0], c * row_dir[1] + d * col_dir[1])
+        new_row = (a * row_dir[0] + b * col_dir[0], a * row_dir[1] + b * col_dir[1])
+        horizontal = abs(new_col[0]) / math.hypot(*new_col) >= abs(new_row[0]) / math.hypot(*new_row)
+        axis_rank = 0 if (board_size is not None and board_size[0] != board_size[1]) or horizontal else 1
+        key = (axis_rank, not origin_light, new_col[0] <= 0)
+        if best_key is None or key < best_key:
+            best_key = key
+            best = np.stack([a * grid[:, 0] + b * grid[:, 1] - r0, c * grid[:, 0] + d * grid[:, 1] - c0], 1)
+    return best
