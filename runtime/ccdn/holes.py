@@ -28,7 +28,7 @@ import numpy as np
 from .edges import lattice_steps
 from .board import Board, hole_cells, indexed_board, largest_first, with_corners
 from .grid import MIN_CORNERS, SHADE_SPREAD
-from .lattice import inside_margin
+from .lattice import inside_margin, local_homography
 from .peaks import best_near, best_peak
 from .refine import refine, window_for_spacing
 from .shade import light_levels, light_spread, refined_across_shadows_edge
@@ -56,11 +56,7 @@ def predicted_cells(grid: np.ndarray, xy: np.ndarray, cells: np.ndarray, shape: 
     EDGE_MARGIN inside: ccdn.lattice.inside_margin; a board the frame cuts) are left out."""
     found_cells, preds, steps = [], [], []
     for cell in cells:
-        near = (np.abs(grid - cell) <= NEAR_CELLS).all(1)
-        if near.sum() < 4:
-            continue
-        homography, _ = cv2.findHomography(grid[near][:, ::-1].astype(np.float64), xy[near].astype(np.float64), 0)
-        if homography is None or abs(np.linalg.det(homography)) < 1e-12:
+        if (homography := local_homography(grid, xy, cell, NEAR_CELLS, 4)) is None:
             continue
         at = np.array([[cell[::-1], cell[::-1] + (1, 0), cell[::-1] + (0, 1)]], np.float64)  # (col, row), like (x, y)
         point, along_row, along_col = cv2.perspectiveTransform(at, homography)[0]

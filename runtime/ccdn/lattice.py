@@ -64,6 +64,19 @@ def each_where_the_others_put_it(grid: np.ndarray, points: np.ndarray) -> bool:
     return True
 
 
+def local_homography(grid: np.ndarray, xy: np.ndarray, cell: np.ndarray, reach: int, least: int
+                     ) -> np.ndarray | None:
+    """The homography from lattice (col, row) to image positions fitted to a board's corners (at
+    (row, col) grid (M, 2), positions xy (M, 2)) up to `reach` rows and columns from `cell` (row, col):
+    what the lattice around a position puts there (ccdn.holes, ccdn.outliers). None with fewer than
+    `least` such corners or a degenerate fit."""
+    near = (np.abs(grid - cell) <= reach).all(1)
+    if near.sum() < least:
+        return None
+    homography, _ = cv2.findHomography(grid[near][:, ::-1].astype(np.float64), xy[near].astype(np.float64), 0)
+    return None if homography is None or abs(np.linalg.det(homography)) < 1e-12 else homography
+
+
 def first_of_each_cell(cells: np.ndarray) -> np.ndarray:
     """Indices of the first occurrence of each distinct grid cell in cells (K, 2) int (row, col), in
     (row, col) order: np.unique(axis=0, return_index=True) on one integer key per cell, without its

@@ -29,6 +29,7 @@ import numpy as np
 
 from .board import Board
 from .edges import lattice_steps, median_step
+from .lattice import local_homography
 from .refine import refine_saddle_points, window_for_spacing
 from .shade import refined_across_shadows_edge
 from .stats import median, nanmedian_rows, vector_lengths
@@ -65,7 +66,8 @@ def off_lattice(gray: np.ndarray, board: Board, steps: np.ndarray) -> tuple[np.n
         return board.xy, keep
     on_lattice = cv2.perspectiveTransform(grid[None, :, ::-1].astype(np.float64), homography)[0]
     offset = xy - on_lattice
-    if not median(vector_lengths(offset)) < FLAT * median_step(steps):
+    step = median_step(steps)
+    if not median(vector_lengths(offset)) < FLAT * step:
         return board.xy, keep
     canvas = np.full((*(grid.max(0) + 3), 2), np.nan)  # the offsets on the grid, a NaN margin around
     canvas[grid[:, 0] + 1, grid[:, 1] + 1] = offset
@@ -84,7 +86,7 @@ def off_lattice(gray: np.ndarray, board: Board, steps: np.ndarray) -> tuple[np.n
     on_prediction = board.xy.copy()  # the steps from the predictions: an outlier's own steps are as far off as it
     on_prediction[outliers] = predicted
     around = lattice_steps(dataclasses.replace(board, xy=on_prediction))[outliers]
-    radius = window_for_spacing(median_step(steps))
+    radius = window_for_spacing(step)
     fits = (refined_across_shadows_edge(gray, predicted, around),  # the saddle fit, then edge lines; ...
             refined_across_shadows_edge(gray, predicted, around, saddle=False),  # ... edge lines alone; ...
             refine_saddle_points(gray, predicted, radius, 0.4 * radius, max_shift=REFIT_REACH))  # ... plainly
@@ -110,15 +112,12 @@ def _alone_in_line(grid: np.ndarray, which: np.ndarray) -> np.ndarray:
 def _locally_predicted(grid: np.ndarray, xy: np.ndarray, which: np.ndarray) -> np.ndarray:
     """(K, 2): where a homography fitted to the corners within LOCAL_REACH rows and columns of each
     corner `which` (indices), those corners left out, puts it (its own position where fewer than 6
-    are there): two outliers side by side pulled each other's prediction 0.7-1 px off."""
+    are there, or the fit is degenerate): two outliers side by side pulled each other's prediction 0.7-1 px off."""
     out = xy[which].copy()
     others = np.ones(len(grid), bool)
     others[which] = False
+    around, around_xy = grid[others], xy[others]
     for k, i in enumerate(which):
-        near = (np.abs(grid - grid[i]).max(1) <= LOCAL_REACH) & others
-        if near.sum() < 6:
-            continue
-        homography, _ = cv2.findHomography(grid[near, ::-1].astype(np.float64), xy[near], 0)
-        if homography is not None:
+        if (homography := local_homography(around, around_xy, grid[i], LOCAL_REACH, 6)) is not None:
             out[k] = cv2.perspectiveTransform(grid[None, i : i + 1, ::-1].astype(np.float64), homography)[0, 0]
     return out
