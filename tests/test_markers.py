@@ -139,6 +139,33 @@ def test_a_marked_board_with_clean_dark_squares_needs_less_range_in_its_light_on
     assert ccdn.Detector(threads=2).detect(scene.image).boards == ()
 
 
+def test_a_small_marked_board_seeds_among_the_corner_like_points_its_markers_crowd(monkeypatch):
+    """On the markers render 7170287 (a small board, ~20 px squares, in a dim frame) the network scores
+    every corner and many of the markers' own: among each corner's nearest points its lattice
+    neighbours were outnumbered, no seed square was sought between them, and the board was lost
+    whole. The marker search's last round seeks seed squares among the corner-like points alone
+    (ccdn.grid, Markers): found whole, 35 corners, indexed as they are, each within 1 px of its label."""
+    pytest.importorskip("ccdn_training.synth")
+    scene = stress_scene("markers", 7_170_287)
+    boards = ccdn.Detector(threads=2).detect(scene.image).boards
+    assert [len(board) for board in boards] == [len(scene.corners)] == [35] and true_board(boards[0], scene, 1.0)
+    monkeypatch.setattr("ccdn.grid._corner_like_neighbours", lambda gray, xy, gaps, neighbours:
+                        (neighbours, np.zeros(len(xy), bool)))  # no such round
+    assert ccdn.Detector(threads=2).detect(scene.image).boards == ()
+
+
+def test_nearest_neighbours_among_some_points_are_theirs_alone_nearest_first():
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 100, (300, 2))
+    among = rng.random(300) < 0.4
+    index, dist2 = nearest_neighbours(xy, 5, among)
+    ids = np.nonzero(among)[0]
+    d = distances(xy, xy[ids]) ** 2
+    d[ids, np.arange(len(ids))] = np.inf  # a point is not its own neighbour
+    expected = ids[np.argsort(d, axis=1, kind="stable")[:, :5]]
+    assert np.array_equal(index, expected) and np.allclose(dist2, np.take_along_axis(d, np.argsort(d, 1)[:, :5], 1))
+
+
 def opencv_charuco_view(square: int = 25, ratio: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
     """An 8 x 6-square ChArUco board as OpenCV draws it (DICT_4X4_50, markers `ratio` of the square),
     flat in a 640x480 frame (drawn at twice the size, halved, blurred a little), and its inner

@@ -84,7 +84,13 @@ whose peak lies on its light side, where the fit's window reaches a marker's bor
 (OpenCV's markers of 0.8 on 25 px squares: every other corner of the board), converges from the
 dark side (OpenCV's ChArUco images 45 -> 48 of 54 boards, stress renders with markers 4.6 / 1.7 /
 3.9 -> 2.1 / 1.6 / 3.5 % missed; only this search takes them: in the plain one such retried fits,
-most of them on clutter, took the place of corners completion fits right on steep boards). The same search finds
+most of them on clutter, took the place of corners completion fits right on steep boards). Where neither
+finds a board, a last round seeks seed squares among the corner-like points alone (ccdn.checker.x_like),
+from the seeds whose SEED_NEIGHBOURS nearest that changes: on a small marked board the network scores
+its markers' own corners too, most of them not corner-like, and they outnumbered a corner's lattice
+neighbours among its nearest points (stress render 7170287: 19 of 116 lattice neighbours not even among
+the SEED_REACH nearest, the board lost whole; found whole now, 35 corners; FRESH; ~1780 cached frames of
+every other kind bit for bit the same, boardless renders ~4 % more time). The same search finds
 close-ups: a few squares filling the
 frame, whose size perspective changes from one square to the next, so that the plain search's quads,
 sampled widely with one square's steps, cross into other squares; a plain board it finds is kept
@@ -124,7 +130,7 @@ from .edges import lattice_steps, median_step
 from .growth import Grower
 from .lattice import SEED_AXES, SEED_REACH_UNIFORM, distances, each_where_the_others_put_it, inside_margin
 from .linked import edge_pairs, kept_edges, linked_components
-from .seeds import SEED_CHUNK, SEED_REACH, NearQuads, seed_squares
+from .seeds import SEED_CHUNK, SEED_NEIGHBOURS, SEED_REACH, NearQuads, seed_squares
 from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from .stats import median, quantile, vector_lengths
 
@@ -250,24 +256,30 @@ def _bridge_leftovers(growers: list[Grower], free: np.ndarray) -> None:
             free[idx[idx < n]] = False
 
 
-def nearest_neighbours(xy: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's min(k, N - 1) nearest other points, nearest first: indices (N, k) and squared
-    distances (N, k). Distances come from one matrix product per block of 256 rows (|a|^2 + |b|^2 -
-    2 a.b), so memory stays O(N) per block and time is a small fraction of the direct form's."""
-    k = min(k, len(xy) - 1)
+def nearest_neighbours(xy: np.ndarray, k: int, among: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's min(k, M - 1) nearest other points among the M points `among` marks ((N,) bool;
+    default: all), nearest first: indices into xy (N, k) and squared distances (N, k). Distances come
+    from one matrix product per block of 256 rows (|a|^2 + |b|^2 - 2 a.b), so memory stays O(N) per
+    block and time is a small fraction of the direct form's."""
+    ids = np.arange(len(xy)) if among is None else np.nonzero(among)[0]
+    others = xy[ids]
+    k = min(k, len(others) - 1)
     index, dist2 = np.empty((len(xy), k), np.int64), np.empty((len(xy), k))
-    norms = (xy**2).sum(1)
+    norms = (others**2).sum(1)
     for start in range(0, len(xy), 256):
         block = slice(start, start + 256)
-        d2 = xy[block] @ xy.T  # in place from here: temporaries of this size cost more than the arithmetic
+        d2 = xy[block] @ others.T  # in place from here: temporaries of this size cost more than the arithmetic
         d2 *= -2
         d2 += norms[None]
-        d2 += norms[block, None]
-        d2.ravel()[start :: len(xy) + 1] = np.inf  # each row's own point: its diagonal
+        d2 += (xy[block] ** 2).sum(1)[:, None]
+        if among is None:
+            d2.ravel()[start :: len(xy) + 1] = np.inf  # each row's own point: its diagonal
+        else:
+            d2[ids[None] == np.arange(len(xy))[block, None]] = np.inf
         part = d2.argmin(1)[:, None] if k == 1 else np.argpartition(d2, k - 1, axis=1)[:, :k]
         d2 = np.take_along_axis(d2, part, 1)
         order = np.argsort(d2, axis=1, kind="stable")
-        index[block] = np.take_along_axis(part, order, 1)
+        index[block] = ids[np.take_along_axis(part, order, 1)]
         dist2[block] = np.maximum(np.take_along_axis(d2, order, 1), 0)
     return index, dist2
 
@@ -332,6 +344,11 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
                             allow_partial, complete, uneven_seeds, quads, plain_seeds=0)
             if found:
                 break
+        else:  # seed squares among the corner-like points alone (module docstring, Markers)
+            like, crowded = _corner_like_neighbours(gray, marker_xy, marker_gaps, marker_neighbours)
+            if crowded.any():
+                found = _search(gray, sampler, marker_xy, marker_score, like, marker_gaps, board_size, allow_partial,
+                                complete, uneven_seeds, MARKER_QUADS, plain_seeds=0, only=crowded)
         boards = tuple(board for board in found
                        if _marked(sampler, board) or (close_ups and _close_up(board, gray.shape)))
     if close_ups:
@@ -397,6 +414,21 @@ def _marked(sampler: Sampler, board: Board) -> bool:
     return bool(excess > (MARKED_CLEAN if median(dark_spread[known]) < CLEAN_DARK * contrast else MARKED) * contrast)
 
 
+def _corner_like_neighbours(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray, neighbours: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Each corner's SEED_REACH nearest among the corner-like ones (ccdn.checker.x_like), and which
+    corners' SEED_NEIGHBOURS nearest that changes (the seeds a search with them has not tried yet):
+    a marked board's corners crowded by its markers' own (module docstring, Markers)."""
+    corner_like = x_like(gray, xy, gaps)
+    if corner_like.sum() < 4:  # no seed square
+        return neighbours, np.zeros(len(xy), bool)
+    like = nearest_neighbours(xy, SEED_REACH, corner_like)[0]
+    n = min(SEED_NEIGHBOURS, neighbours.shape[1])
+    if like.shape[1] < n:  # fewer corner-like corners than that: every seed's change
+        return like, np.ones(len(xy), bool)
+    return like, (like[:, :n] != neighbours[:, :n]).any(1)
+
+
 def _shaded_square(gray: np.ndarray, sampler: Sampler, boards: tuple[Board, ...]) -> float | None:
     """The median lattice step (px) of the first board lit more unevenly than SHADE_SPREAD
     (ccdn.shade.light_spread), None when none is."""
@@ -422,14 +454,17 @@ def _unlit_square(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray) -> tuple[f
 
 def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarray, neighbours: np.ndarray,
             gaps: np.ndarray, board_size: tuple[int, int] | None, allow_partial: bool, complete: bool,
-            uneven_seeds: int, near: NearQuads | None = None, plain_seeds: int = MAX_PLAIN_SEEDS
-            ) -> tuple[Board, ...]:
+            uneven_seeds: int, near: NearQuads | None = None, plain_seeds: int = MAX_PLAIN_SEEDS,
+            only: np.ndarray | None = None) -> tuple[Board, ...]:
     """find_boards' search on `gray` (sampled by `sampler`) for corners xy with their nearest
     neighbours (nearest_neighbours) and gaps (distance to the nearest); near: seed squares' quads
     sampled near their corners (seed_squares); plain_seeds: how many seeds to try among the corners
-    that fail the ring test (module docstring)."""
+    that fail the ring test (module docstring); only: (N,) bool, the corner-like seeds to try
+    (default: all)."""
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
     corner_like = x_like(gray, xy, gaps)[order]
+    if only is not None:
+        corner_like &= only[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:plain_seeds]])
     free = inside_margin(xy, gray.shape)  # corners at the frame's edge are in no board
     growers: list[Grower] = []
