@@ -54,7 +54,8 @@ from .models import default_coarse_model
 from .outliers import off_lattice
 from .peaks import best_near, find_peaks, kmeans_outliers, suppress
 from .regions import look_boxes
-from .refine import refine, refine_from_neighbours, refine_from_shrunk, window_for_spacing
+from .refine import (NARROW_RADIUS, refine, refine_from_neighbours, refine_from_shrunk, refine_saddle_points,
+                     window_for_spacing)
 from .result import Detection
 from .session import ScoreSession
 from .shade import across_shadows_edge, light_levels, light_spread, refined_across_shadows_edge
@@ -85,6 +86,7 @@ FULL_FRAME_UNEVEN_SEEDS = 1  # on the full frame a seed square may have a corner
 # crosses (ccdn.grid); not on shrunk passes, where finding a hard board would stop the finer passes
 GRID_THRESHOLD = (0.4, 0.25)  # (relative, floor) with the grid filter: the recall of (0.3, 0.2) at half its cost (measured)
 PAPER_THRESHOLD = (0.5, 0.3)  # the paper's half of the maximum (and a floor), for the other filters
+NARROW_SHIFT = 1.5  # px a failed fit retried with the narrowest window may move from its peak (_retried_fits)
 MIN_BOARD_SQUARE = 5.0  # px: a board of the full frame's pass or its looks (a shrunk pass finds none so small) whose
 # squares' longer side (median over its corners) is shorter is dropped (_without_tiny_boards): smaller than any
 # square the networks were trained on (6 px) or the benchmarks hold, and where lines cross, clutter holds such
@@ -388,17 +390,25 @@ def _with_completed(xy: np.ndarray, values: np.ndarray, boards: tuple[Board, ...
 
 
 def _retried_fits(gray: np.ndarray, failed: np.ndarray, failed_values: np.ndarray, radius: int, refined: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """The corners (xy, values) of the full frame's failed saddle fits (peaks `failed`, their scores)
-    that converge from their peak's diagonal neighbours (ccdn.refine.refine_from_neighbours), but those
-    within 1 px of a refined corner or of one another: corners the marker search alone may use (a
-    marker's border reaches the window of a corner whose peak lies on its light side; elsewhere such
-    retried fits land on clutter, markers' bits and, on steep boards, 1-1.7 px off corners that
-    completion fits right: 4 corners of 7100590 lost so, when the plain search used them too)."""
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The corners (xy, values, narrow) of the full frame's failed saddle fits (peaks `failed`, their
+    scores) that converge from their peak's diagonal neighbours (ccdn.refine.refine_from_neighbours)
+    or else, `narrow` marks them, from the peak with the narrowest window (ccdn.refine.NARROW_RADIUS:
+    a marker's light border of a pixel or two inside the usual window), but those within 1 px of a
+    refined corner or of one another: corners the marker search alone may use, the narrow ones for
+    growth only (ccdn.grid, Markers; a marker's border reaches the window of a corner whose peak lies
+    on its light side; elsewhere such retried fits land on clutter, markers' bits and, on steep
+    boards, 1-1.7 px off corners that completion fits right: 4 corners of 7100590 lost so, when the
+    plain search used them too)."""
     points, converged = refine_from_neighbours(gray, failed, radius, 1.0)
-    points, values = points[converged], failed_values[converged]
+    narrow = np.zeros(len(points), bool)
+    if radius > NARROW_RADIUS and (again := ~converged).any():
+        points[again], converged[again] = refine_saddle_points(gray, failed[again], NARROW_RADIUS,
+                                                               0.4 * NARROW_RADIUS, max_shift=NARROW_SHIFT)
+        narrow[again] = True
+    points, values, narrow = points[converged], failed_values[converged], narrow[converged]
     distinct = suppress(np.concatenate([refined, points]), radius=1.0)[len(refined):]
-    return points[distinct], values[distinct]
+    return points[distinct], values[distinct], narrow[distinct]
 
 
 def _light(gray: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:

@@ -89,8 +89,17 @@ finds a board, a last round seeks seed squares among the corner-like points alon
 from the seeds whose SEED_NEIGHBOURS nearest that changes: on a small marked board the network scores
 its markers' own corners too, most of them not corner-like, and they outnumbered a corner's lattice
 neighbours among its nearest points (stress render 7170287: 19 of 116 lattice neighbours not even among
-the SEED_REACH nearest, the board lost whole; found whole now, 35 corners; FRESH; ~1780 cached frames of
-every other kind bit for bit the same, boardless renders ~4 % more time). The same search finds
+the SEED_REACH nearest, the board lost whole; found whole now, 35 corners; 80 fresh renders with markers:
+one board more, 13 of 21 corners, rightly indexed, nothing lost; ~1780 cached frames of every other kind
+bit for bit the same; boardless renders ~4 % more time). Failed fits that converge from no diagonal
+neighbour are fitted once more from their peak with the narrowest window (ccdn.refine.NARROW_RADIUS):
+markers of 0.8 of small squares leave a light border of a pixel or two, which the usual window
+reaches (render 7170081: 16 of its 40 corners). These join growth alone, neither seeds nor a seed
+square's corners: taken there too, they changed the seed squares found and lost boards whole (7170163,
+7170287). Stress renders with markers, the four samples: 124 -> 86 of 5045 corners missed; 80 fresh
+ones: 99 -> 71 of 5197; none lost, no false positive, none of 159 boards wrongly indexed; their hits
+0.059 -> 0.062 px off the truth (mean), 69 -> 83 of them over 0.5 px; ~1780 cached frames of every
+other kind bit for bit the same. The same search finds
 close-ups: a few squares filling the
 frame, whose size perspective changes from one square to the next, so that the plain search's quads,
 sampled widely with one square's steps, cross into other squares; a plain board it finds is kept
@@ -261,6 +270,7 @@ def nearest_neighbours(xy: np.ndarray, k: int, among: np.ndarray | None = None) 
     default: all), nearest first: indices into xy (N, k) and squared distances (N, k). Distances come
     from one matrix product per block of 256 rows (|a|^2 + |b|^2 - 2 a.b), so memory stays O(N) per
     block and time is a small fraction of the direct form's."""
+    among = None if among is None or among.all() else among
     ids = np.arange(len(xy)) if among is None else np.nonzero(among)[0]
     others = xy[ids]
     k = min(k, len(others) - 1)
@@ -287,7 +297,7 @@ def nearest_neighbours(xy: np.ndarray, k: int, among: np.ndarray | None = None) 
 def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size: tuple[int, int] | None = None,
                 *, allow_partial: bool = False, complete: bool = False, uneven_seeds: int = 0,
                 shade_unfound: bool = False, markers: bool = False, close_ups: bool = False,
-                more: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None) -> tuple[Board, ...]:
+                more: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None) -> tuple[Board, ...]:
     """Link corners into checkerboards: the boards found, largest first (ties: top, then left).
 
     gray: (H, W) uint8 image the corners come from. xy: (N, 2) corner positions (x, y), (0, 0) the
@@ -303,9 +313,11 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     markers: where no board is found, search again for a board with markers in its light squares
     (module docstring, Markers); close_ups (with markers): keep the plain boards of close-ups that
     search finds too, and link corners along their edges for the close-ups growth missed (module
-    docstring, Close-ups linked). more (with markers): corners (xy, score) that search may use besides
-    xy, asked for only when it runs (the detector's failed saddle fits retried: module docstring,
-    Markers); the boards' corner_index past len(xy) then names these too, their positions in Board.xy.
+    docstring, Close-ups linked). more (with markers): corners (xy, score, unseeded) that search may use
+    besides xy, asked for only when it runs (the detector's failed saddle fits retried: module
+    docstring, Markers), those `unseeded` marks ((K,) bool) for growth alone, neither seeds nor a seed
+    square's corners; the boards' corner_index past len(xy) then names these too, their positions in
+    Board.xy.
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
@@ -335,17 +347,19 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
             boards = again
     if markers and not boards:  # a ChArUco-style board or a close-up (module docstring, Markers)
         marker_xy, marker_score, marker_neighbours, marker_gaps = xy, score, neighbours, gaps
+        seedable = np.ones(len(xy), bool)
         if more is not None and len((extra := more())[0]):  # this search's corners besides xy (more)
             marker_xy, marker_score = np.concatenate([xy, extra[0]]), np.concatenate([score, extra[1]])
-            marker_neighbours, dist2 = nearest_neighbours(marker_xy, SEED_REACH)
+            seedable = np.concatenate([seedable, ~extra[2]])
+            marker_neighbours, dist2 = nearest_neighbours(marker_xy, SEED_REACH, seedable)
             marker_gaps = np.sqrt(dist2[:, 0])
         for quads in (MARKER_QUADS, MARKER_DARK):  # the dark squares' seeds where the others find no board
             found = _search(gray, sampler, marker_xy, marker_score, marker_neighbours, marker_gaps, board_size,
-                            allow_partial, complete, uneven_seeds, quads, plain_seeds=0)
+                            allow_partial, complete, uneven_seeds, quads, plain_seeds=0, only=seedable)
             if found:
                 break
         else:  # seed squares among the corner-like points alone (module docstring, Markers)
-            like, crowded = _corner_like_neighbours(gray, marker_xy, marker_gaps, marker_neighbours)
+            like, crowded = _corner_like_neighbours(gray, marker_xy, marker_gaps, marker_neighbours, seedable)
             if crowded.any():
                 found = _search(gray, sampler, marker_xy, marker_score, like, marker_gaps, board_size, allow_partial,
                                 complete, uneven_seeds, MARKER_QUADS, plain_seeds=0, only=crowded)
@@ -414,19 +428,20 @@ def _marked(sampler: Sampler, board: Board) -> bool:
     return bool(excess > (MARKED_CLEAN if median(dark_spread[known]) < CLEAN_DARK * contrast else MARKED) * contrast)
 
 
-def _corner_like_neighbours(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray, neighbours: np.ndarray
-                            ) -> tuple[np.ndarray, np.ndarray]:
-    """Each corner's SEED_REACH nearest among the corner-like ones (ccdn.checker.x_like), and which
-    corners' SEED_NEIGHBOURS nearest that changes (the seeds a search with them has not tried yet):
-    a marked board's corners crowded by its markers' own (module docstring, Markers)."""
-    corner_like = x_like(gray, xy, gaps)
+def _corner_like_neighbours(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray, neighbours: np.ndarray,
+                            seedable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each corner's SEED_REACH nearest among the corner-like (ccdn.checker.x_like) `seedable` ones,
+    and the seeds, among those, whose SEED_NEIGHBOURS nearest that changes (a search with the
+    `neighbours` given has tried the others): a marked board's corners crowded by its markers' own
+    (module docstring, Markers)."""
+    corner_like = x_like(gray, xy, gaps) & seedable
     if corner_like.sum() < 4:  # no seed square
         return neighbours, np.zeros(len(xy), bool)
     like = nearest_neighbours(xy, SEED_REACH, corner_like)[0]
     n = min(SEED_NEIGHBOURS, neighbours.shape[1])
     if like.shape[1] < n:  # fewer corner-like corners than that: every seed's change
-        return like, np.ones(len(xy), bool)
-    return like, (like[:, :n] != neighbours[:, :n]).any(1)
+        return like, corner_like
+    return like, corner_like & (like[:, :n] != neighbours[:, :n]).any(1)
 
 
 def _shaded_square(gray: np.ndarray, sampler: Sampler, boards: tuple[Board, ...]) -> float | None:
