@@ -91,7 +91,7 @@ its markers' own corners too, most of them not corner-like, and they outnumbered
 neighbours among its nearest points (stress render 7170287: 19 of 116 lattice neighbours not even among
 the SEED_REACH nearest, the board lost whole; found whole now, 35 corners; 80 fresh renders with markers:
 one board more, 13 of 21 corners, rightly indexed, nothing lost; ~1780 cached frames of every other kind
-bit for bit the same; boardless renders ~4 % more time). Failed fits that converge from no diagonal
+bit for bit the same). Failed fits that converge from no diagonal
 neighbour are fitted once more from their peak with the narrowest window (ccdn.refine.NARROW_RADIUS):
 markers of 0.8 of small squares leave a light border of a pixel or two, which the usual window
 reaches (render 7170081: 16 of its 40 corners). These join growth alone, neither seeds nor a seed
@@ -99,7 +99,8 @@ square's corners: taken there too, they changed the seed squares found and lost 
 7170287). Stress renders with markers, the four samples: 124 -> 86 of 5045 corners missed; 80 fresh
 ones: 99 -> 71 of 5197; none lost, no false positive, none of 159 boards wrongly indexed; their hits
 0.059 -> 0.062 px off the truth (mean), 69 -> 83 of them over 0.5 px; ~1780 cached frames of every
-other kind bit for bit the same. The same search finds
+other kind bit for bit the same. A boardless frame, which runs these rounds, takes 6-8 % longer for them
+(README, Latency). The same search finds
 close-ups: a few squares filling the
 frame, whose size perspective changes from one square to the next, so that the plain search's quads,
 sampled widely with one square's steps, cross into other squares; a plain board it finds is kept
