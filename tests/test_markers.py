@@ -149,7 +149,7 @@ def test_a_small_marked_board_seeds_among_the_corner_like_points_its_markers_cro
     scene = stress_scene("markers", 7_170_287)
     boards = ccdn.Detector(threads=2).detect(scene.image).boards
     assert [len(board) for board in boards] == [len(scene.corners)] == [35] and true_board(boards[0], scene, 1.0)
-    monkeypatch.setattr("ccdn.grid._corner_like_neighbours", lambda gray, xy, gaps, neighbours, seedable:
+    monkeypatch.setattr("ccdn.grid._corner_like_neighbours", lambda xy, corner_like, neighbours:
                         (neighbours, np.zeros(len(xy), bool)))  # no such round
     assert ccdn.Detector(threads=2).detect(scene.image).boards == ()
 

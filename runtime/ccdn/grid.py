@@ -271,26 +271,26 @@ def nearest_neighbours(xy: np.ndarray, k: int, among: np.ndarray | None = None) 
     default: all), nearest first: indices into xy (N, k) and squared distances (N, k). Distances come
     from one matrix product per block of 256 rows (|a|^2 + |b|^2 - 2 a.b), so memory stays O(N) per
     block and time is a small fraction of the direct form's."""
-    among = None if among is None or among.all() else among
-    ids = np.arange(len(xy)) if among is None else np.nonzero(among)[0]
-    others = xy[ids]
+    own = (xy**2).sum(1)
+    ids = None if among is None or among.all() else np.nonzero(among)[0]  # None: all points, no mapping
+    others, norms = (xy, own) if ids is None else (xy[ids], own[ids])
     k = min(k, len(others) - 1)
     index, dist2 = np.empty((len(xy), k), np.int64), np.empty((len(xy), k))
-    norms = (others**2).sum(1)
     for start in range(0, len(xy), 256):
         block = slice(start, start + 256)
         d2 = xy[block] @ others.T  # in place from here: temporaries of this size cost more than the arithmetic
         d2 *= -2
         d2 += norms[None]
-        d2 += (xy[block] ** 2).sum(1)[:, None]
-        if among is None:
+        d2 += own[block, None]
+        if ids is None:
             d2.ravel()[start :: len(xy) + 1] = np.inf  # each row's own point: its diagonal
         else:
             d2[ids[None] == np.arange(len(xy))[block, None]] = np.inf
         part = d2.argmin(1)[:, None] if k == 1 else np.argpartition(d2, k - 1, axis=1)[:, :k]
         d2 = np.take_along_axis(d2, part, 1)
         order = np.argsort(d2, axis=1, kind="stable")
-        index[block] = ids[np.take_along_axis(part, order, 1)]
+        nearest = np.take_along_axis(part, order, 1)
+        index[block] = nearest if ids is None else ids[nearest]
         dist2[block] = np.maximum(np.take_along_axis(d2, order, 1), 0)
     return index, dist2
 
@@ -354,16 +354,17 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
             seedable = np.concatenate([seedable, ~extra[2]])
             marker_neighbours, dist2 = nearest_neighbours(marker_xy, SEED_REACH, seedable)
             marker_gaps = np.sqrt(dist2[:, 0])
+        corner_like = x_like(gray, marker_xy, marker_gaps) & seedable  # every round's seeds (plain_seeds=0)
         for quads in (MARKER_QUADS, MARKER_DARK):  # the dark squares' seeds where the others find no board
             found = _search(gray, sampler, marker_xy, marker_score, marker_neighbours, marker_gaps, board_size,
-                            allow_partial, complete, uneven_seeds, quads, plain_seeds=0, only=seedable)
+                            allow_partial, complete, uneven_seeds, quads, plain_seeds=0, corner_like=corner_like)
             if found:
                 break
         else:  # seed squares among the corner-like points alone (module docstring, Markers)
-            like, crowded = _corner_like_neighbours(gray, marker_xy, marker_gaps, marker_neighbours, seedable)
+            like, crowded = _corner_like_neighbours(marker_xy, corner_like, marker_neighbours)
             if crowded.any():
                 found = _search(gray, sampler, marker_xy, marker_score, like, marker_gaps, board_size, allow_partial,
-                                complete, uneven_seeds, MARKER_QUADS, plain_seeds=0, only=crowded)
+                                complete, uneven_seeds, MARKER_QUADS, plain_seeds=0, corner_like=crowded)
         boards = tuple(board for board in found
                        if _marked(sampler, board) or (close_ups and _close_up(board, gray.shape)))
     if close_ups:
@@ -429,13 +430,12 @@ def _marked(sampler: Sampler, board: Board) -> bool:
     return bool(excess > (MARKED_CLEAN if median(dark_spread[known]) < CLEAN_DARK * contrast else MARKED) * contrast)
 
 
-def _corner_like_neighbours(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray, neighbours: np.ndarray,
-                            seedable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each corner's SEED_REACH nearest among the corner-like (ccdn.checker.x_like) `seedable` ones,
-    and the seeds, among those, whose SEED_NEIGHBOURS nearest that changes (a search with the
-    `neighbours` given has tried the others): a marked board's corners crowded by its markers' own
-    (module docstring, Markers)."""
-    corner_like = x_like(gray, xy, gaps) & seedable
+def _corner_like_neighbours(xy: np.ndarray, corner_like: np.ndarray, neighbours: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Each corner's SEED_REACH nearest among the corner-like ones (corner_like: (N,) bool, the seeds),
+    and the seeds whose SEED_NEIGHBOURS nearest that changes (a search with the `neighbours` given has
+    tried the others): a marked board's corners crowded by its markers' own (module docstring,
+    Markers)."""
     if corner_like.sum() < 4:  # no seed square
         return neighbours, np.zeros(len(xy), bool)
     like = nearest_neighbours(xy, SEED_REACH, corner_like)[0]
@@ -471,16 +471,14 @@ def _unlit_square(gray: np.ndarray, xy: np.ndarray, gaps: np.ndarray) -> tuple[f
 def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarray, neighbours: np.ndarray,
             gaps: np.ndarray, board_size: tuple[int, int] | None, allow_partial: bool, complete: bool,
             uneven_seeds: int, near: NearQuads | None = None, plain_seeds: int = MAX_PLAIN_SEEDS,
-            only: np.ndarray | None = None) -> tuple[Board, ...]:
+            corner_like: np.ndarray | None = None) -> tuple[Board, ...]:
     """find_boards' search on `gray` (sampled by `sampler`) for corners xy with their nearest
     neighbours (nearest_neighbours) and gaps (distance to the nearest); near: seed squares' quads
     sampled near their corners (seed_squares); plain_seeds: how many seeds to try among the corners
-    that fail the ring test (module docstring); only: (N,) bool, the corner-like seeds to try
-    (default: all)."""
+    that fail the ring test (module docstring); corner_like: (N,) bool, the seeds that pass it
+    where the caller knows them (e.g. some of them only; default: checker.x_like on xy)."""
     order = np.lexsort((xy[:, 0], xy[:, 1], -score))
-    corner_like = x_like(gray, xy, gaps)[order]
-    if only is not None:
-        corner_like &= only[order]
+    corner_like = (x_like(gray, xy, gaps) if corner_like is None else corner_like)[order]
     seeds = np.concatenate([order[corner_like], order[~corner_like][:plain_seeds]])
     free = inside_margin(xy, gray.shape)  # corners at the frame's edge are in no board
     growers: list[Grower] = []
