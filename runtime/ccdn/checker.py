@@ -199,6 +199,9 @@ _HALF_STEPS = np.array([[0, 0, 1, 1], [0, 0, 1, -1], [0, 0, -1, 1], [0, 0, -1, -
 QUAD_PAIRS = np.array([[0, 1], [0, 2], [3, 1], [3, 2]])
 _HALF_STEPS.setflags(write=False)
 QUAD_PAIRS.setflags(write=False)
+PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2): the
+# pairs (pair_differences' columns) that leave each quad out: a corner's pairs where one quad is hidden
+PAIRS_WITHOUT.setflags(write=False)
 _OWN_QUADS, _OTHER_QUADS = QUAD_PAIRS.T
 
 

@@ -17,7 +17,13 @@ non-uniform quads (BEHIND_UNEVEN): where one board lies in front of another, its
 quads of two corners of every square of the one behind along it, and what is left visible of that
 one may be an L or a strip (stress two-boards renders, README sample: 28 -> 16 corners missed; the
 other subsets and real-dev unchanged; on every pass, without a board found first it changed which
-boards the shrunk passes find: extreme pose 18 -> 64 missed).
+boards the shrunk passes find: extreme pose 18 -> 64 missed). Each such corner may have one quad
+hidden, its three others alternating (ccdn.seeds.BEHIND_UNEVEN): the front board's light margin over
+a dark quad of the one behind (stress two-boards render 7120536: a piece of 6 corners below the front
+board found, indexed as it is; ~1780 cached frames of every other kind the same). The boards this
+round finds are grown again once the earlier boards are bridged, and bridged in turn: seeded here, a
+piece of a back board grew into a board of its own, where the back board, grown from elsewhere,
+bridged to it before (fresh render 7122551: 81 corners -> 69 and 8).
 The board then grows from the seed square (ccdn.growth: ring-at-once while it looks flat, then
 position by position, each corner passing the image test; completing, also from the image:
 ccdn.completion) and is cleaned up (ccdn.cleanup: sharp turns, lone points on its outline, stubs,
@@ -140,7 +146,7 @@ from .edges import lattice_steps, median_step
 from .growth import Grower
 from .lattice import SEED_AXES, SEED_REACH_UNIFORM, distances, each_where_the_others_put_it, inside_margin
 from .linked import edge_pairs, kept_edges, linked_components
-from .seeds import SEED_CHUNK, SEED_NEIGHBOURS, SEED_REACH, NearQuads, seed_squares
+from .seeds import BEHIND_UNEVEN, SEED_CHUNK, SEED_NEIGHBOURS, SEED_REACH, NearQuads, seed_squares
 from .shade import LightEnvelope, levelled, light_envelope, light_levels, light_spread, points_light_spread
 from .stats import median, quantile, vector_lengths
 
@@ -148,7 +154,6 @@ MIN_CORNERS = 8
 MIN_PIECE = 6  # corners a board may hold beside one of MIN_CORNERS or as a close-up (module docstring)
 MIN_EXTENT = 2  # rows and columns a board spans, at least: a strip of a board behind another (module docstring)
 MAX_PLAIN_SEEDS = 200  # seeds tried among the corners that fail the ring test
-BEHIND_UNEVEN = 2  # corners of a seed square with non-uniform quads in the last round (module docstring)
 SAME_CORNER_PX = 1.0  # a free corner this close to one a board completed from the image is that corner
 MARKER_QUADS = NearQuads(3.0, 0.1, 0.15)  # where the search for a marked board samples seed squares' quads: ~3 px
 # from the corner along each step, 0.1-0.15 of the steps (squares over 40 px: 0.15 reached the markers of 0.8 of the
@@ -483,7 +488,9 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     free = inside_margin(xy, gray.shape)  # corners at the frame's edge are in no board
     growers: list[Grower] = []
     added: list[np.ndarray] = []
-    pieces: list[list] = []  # the seed squares of boards under MIN_CORNERS
+    pieces: list[list] = []  # the seed squares of boards under MIN_CORNERS ...
+    behind: list[list] = []  # ... and of the last round's boards: both grown again once the boards are bridged
+    claimed = np.zeros(len(xy), bool)  # the corners of the last round's boards (their seeds are not tried again)
 
     def grow(square: list) -> Grower | None:
         """The board grown from a seed square over the corners free now (_grow_board)."""
@@ -508,7 +515,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             squares, batch = _sampled_squares(xy, sampler, seeds[free[seeds]], neighbours, free, sampled,
                                               levels[round_index:], near)
         for k, s in enumerate(seeds.tolist()):
-            if not free[s]:
+            if not free[s] or claimed[s]:
                 continue
             if s not in batch:
                 ahead = seeds[k:][free[seeds[k:]]][:size]
@@ -522,8 +529,13 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             grower = grow(square) if square[0] else None
             if grower is None:
                 continue
-            if len(grower.cells()[1]) < MIN_CORNERS:  # a piece: grown again once the boards are done
+            if len(grower.cells()[1]) < MIN_CORNERS:  # a piece (module docstring)
                 pieces.append(square)
+                continue
+            if last:  # a board behind another (module docstring)
+                behind.append(square)
+                idx = grower.cells()[1]
+                claimed[idx[idx < len(xy)]] = True
                 continue
             grown = True
             for parts in sampled.values():  # sampled while the board's corners were free: `free` changes only here
@@ -531,9 +543,16 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             _take_board(grower, xy, free, added, growers)
             batch, size = {}, SEED_CHUNK  # the rest is mostly clutter: one batch, checked against what is free now
     _bridge_leftovers(growers, free)
-    for square in pieces:  # pieces last: grown first, one kept corners a board grows through (module docstring)
-        if free[square[1]].all() and (grower := grow(square)) is not None:
-            _take_board(grower, xy, free, added, growers)
+    # the boards behind others, bridged in turn, then the pieces: grown first, one kept corners a board grows
+    # through (module docstring)
+    for squares, bridged in ((behind, True), (pieces, False)):
+        late: list[Grower] = []
+        for square in squares:
+            if free[square[1]].all() and (grower := grow(square)) is not None:
+                _take_board(grower, xy, free, added, late)
+        if bridged:
+            _bridge_leftovers(late, free)
+        growers += late
     points = np.concatenate([xy, np.reshape(added, (-1, 2))])
     found = []
     for grower in growers:

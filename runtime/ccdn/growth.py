@@ -71,8 +71,8 @@ import math
 import cv2
 import numpy as np
 
-from .checker import (MIN_CONTRAST, QUAD_PAIRS, Sampler, altitude, pair_differences, quad_differences, quad_levels,
-                      quad_means, quad_spread)
+from .checker import (MIN_CONTRAST, PAIRS_WITHOUT, Sampler, altitude, pair_differences, quad_differences,
+                      quad_levels, quad_means, quad_spread)
 from .bridging import Bridging
 from .cleanup import Cleanup
 from .completion import SHADED_CONTRAST, Completion
@@ -108,8 +108,6 @@ VOUCH_SCORE = 0.5  # ... at least this x the board's median (Grower.vouch)
 CANVAS_START = 16  # a new canvas holds this many cells each way from its seed (padding it costs more than its size)
 CANVAS_MARGIN = 8  # empty grid cells kept around a growing board: lookups from the frontier (or a
 # position beyond a hole, 2 cells out) reach 3 + 2 cells further, and must stay on the canvas
-_PAIRS_WITHOUT = np.array([np.nonzero((QUAD_PAIRS != quad).all(1))[0] for quad in range(4)])  # (4 quads, 2):
-# the pairs (quad_differences' columns) that leave each quad out
 _DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0))
 _DIAGONALS = ((-1, -1), (-1, 1), (1, -1), (1, 1))
 _NEARBY = sorted(((i, j) for i in range(-3, 4) for j in range(-3, 4)), key=lambda q: (abs(q[0]) + abs(q[1]), q))
@@ -278,7 +276,7 @@ class Grower(Completion, Cleanup, Bridging):
             mixed[crowded] = wide_spread > WIDE_SPREAD * np.abs(nanmedian_rows(wide_diffs))
             plain &= ~mixed
         far_diffs = pair_differences(far[0]) * sign[:, None]
-        three = (np.fmin.reduce(far_diffs[:, _PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
+        three = (np.fmin.reduce(far_diffs[:, PAIRS_WITHOUT], 2) > max(MIN_CONTRAST, self.threshold)).any(1)
         retry = ~plain & ~mixed & three
         if retry.any():  # the second chance (module docstring), for the points with three quads that failed
             # the plain test: one quad may be hidden, the corner's surroundings may not

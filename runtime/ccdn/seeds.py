@@ -17,7 +17,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .checker import MIN_CONTRAST, NOISY_SIGMA, Sampler, altitude, box_radius, quad_differences, quad_levels
+from .checker import (MIN_CONTRAST, NOISY_SIGMA, PAIRS_WITHOUT, Sampler, altitude, box_radius, quad_differences,
+                      quad_levels)
 from .lattice import SEED_AXES, SEED_REACH_UNIFORM, TOLERANCE, unsheared
 from .stats import median, vector_lengths
 
@@ -26,6 +27,8 @@ SEED_REACH = 24  # ... and its fourth corner among these
 SEED_CHUNK = 256  # seeds checked at once
 FEW_SQUARES = 3  # seed squares up to this many (one seed's first round) are sampled at all 4 corners in one call:
 # a call costs as much as 20-50 corners, while the seed corner alone fails ~4 in 5 of many seeds' squares (clutter)
+BEHIND_UNEVEN = 2  # corners of a seed square with non-uniform quads in ccdn.grid's last round (its module
+# docstring), each of which may have one quad hidden: its three others alternate
 MIN_SQUARE_PX = 3.5  # the seed square's smaller height: below it quad centres cannot be sampled
 NOISE_RANGE = 1.5  # x the image noise over the sampled boxes' side: how much more a noisy frame's seed quads' samples
 # may range (module docstring)
@@ -140,14 +143,29 @@ def seed_squares(xy: np.ndarray, sampler: Sampler, seeds: np.ndarray, neighbours
         g_sign[t] = np.sign(median(diffs, axis=1))
         g_contrast[t] = median(diffs * g_sign[t][:, None], axis=1)
         with np.errstate(invalid="ignore"):
-            even = (g_sign[t] != 0) & (np.min(diffs * g_sign[t][:, None], axis=1)
-                                       > np.maximum(MIN_CONTRAST, 0.4 * g_contrast[t]))
-            if (even & ~(spreads[:, 3 - uneven[0]] < 0.5 * g_contrast[t])).any():  # only these can change
+            floor = np.maximum(MIN_CONTRAST, 0.4 * g_contrast[t])[:, None, None]
+            alike = (diffs * g_sign[t][:, None]).reshape(-1, 4, 4) > floor  # (square, corner, pair)
+            even = {count: (g_sign[t] != 0) & _even(alike, spread, count) for count in set(uneven)}
+            if (even[max(uneven)] & ~(spreads[:, 3 - uneven[0]] < 0.5 * g_contrast[t])).any():  # only these can change
                 spreads = np.maximum(spreads - _noise_allowance(sampler, su, sv)[:, None], 0)
             for level, count in enumerate(uneven):
-                passed[level, t] = even & (spreads[:, 3 - count] < 0.5 * g_contrast[t])
+                passed[level, t] = even[count] & (spreads[:, 3 - count] < 0.5 * g_contrast[t])
     return [_shortest_passing(n_seeds, si, square, by_size, level_passed, g_sign, g_contrast)
             for level_passed in passed]
+
+
+def _even(alike: np.ndarray, spread: np.ndarray, uneven: int) -> np.ndarray:
+    """(G,) whether the quads of squares' 4 corners alternate evenly (alike: (G, corner, pair), each
+    quad pair differing in the square's sign by 0.4 of its contrast), with `uneven` corners allowed
+    non-uniform quads (spread: (G, 4), the least uniform are those): every pair of every corner, but
+    at BEHIND_UNEVEN, where the uneven corners may have one quad hidden."""
+    if uneven < BEHIND_UNEVEN:
+        return alike.all((1, 2))
+    rows = np.arange(len(spread))[:, None]
+    hidden = np.zeros(spread.shape, bool)
+    hidden[rows, np.argsort(spread, 1, kind="stable")[:, 4 - uneven :]] = True  # the uneven corners
+    three = alike[:, :, PAIRS_WITHOUT].all(3).any(2)  # (G, 4): the pairs without one quad alike
+    return (alike.all(2) | (hidden & three)).all(1)
 
 
 def _noise_allowance(sampler: Sampler, u: np.ndarray, v: np.ndarray) -> np.ndarray:
