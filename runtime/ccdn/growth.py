@@ -319,13 +319,14 @@ class Grower(Completion, Cleanup, Bridging):
         return np.argwhere((row_col_neighbours(filled) > 0) & ~filled)
 
     def _match(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray, u: np.ndarray,
-               v: np.ndarray, local: bool = True) -> tuple[np.ndarray, np.ndarray]:
+               v: np.ndarray, local: bool = True, nearest: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """For cells, the free corners nearest their predictions that pass the image test with
         lattice steps u, v (one corner per cell, the nearest cell wins a contested corner) and, for
         local predictions (not a homography's), keep the grid's lines straight: which cells (indices
-        into cells) and their corners."""
+        into cells) and their corners. nearest: the predictions' _nearest_free, where known."""
         none = np.zeros(0, np.int64)
-        if len(cells) == 0 or (nearest := self._nearest_free(preds)) is None:
+        if len(cells) == 0 or (nearest := self._nearest_free(preds) if nearest is None else nearest) is None:
             return none, none
         candidate, dist = nearest
         ok = np.nonzero((dist < tol) & np.isfinite(u).all(1) & np.isfinite(v).all(1))[0]  # the test needs both steps
@@ -397,9 +398,9 @@ class Grower(Completion, Cleanup, Bridging):
         return free[nearest], d[np.arange(len(preds)), nearest]
 
     def _take(self, cells: np.ndarray, preds: np.ndarray, tol: np.ndarray, u: np.ndarray,
-              v: np.ndarray) -> np.ndarray:
-        """Fill cells with their matching free corners (_match); (K,) which were filled."""
-        ok, corners = self._match(cells, preds, tol, u, v)
+              v: np.ndarray, nearest: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """Fill cells with their matching free corners (_match; nearest: as there); (K,) which were filled."""
+        ok, corners = self._match(cells, preds, tol, u, v, nearest=nearest)
         self._place(cells[ok] - self.origin, corners)
         filled = np.zeros(len(cells), bool)
         filled[ok] = True
@@ -516,8 +517,8 @@ class Grower(Completion, Cleanup, Bridging):
         if len(targets) == 0 or (nearest := self._nearest_free(preds)) is None:
             return False
         near = nearest[1] < tols  # only these can take a corner (_match): the steps are wanted for them alone
-        return bool(near.any()) and bool(self._take(targets[near], preds[near], tols[near],
-                                                    *self._axes(targets[near])).any())
+        return bool(near.any()) and bool(self._take(targets[near], preds[near], tols[near], *self._axes(targets[near]),
+                                                    (nearest[0][near], nearest[1][near])).any())
 
     def _beyond(self, cells: np.ndarray, support: tuple[np.ndarray, ...]):
         """Positions two steps beyond the frontier `cells` (with their _support) along a row or column,
