@@ -518,7 +518,7 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             if not free[s] or claimed[s]:
                 continue
             if s not in batch:
-                ahead = seeds[k:][free[seeds[k:]]][:size]
+                ahead = seeds[k:][free[seeds[k:]] & ~claimed[seeds[k:]]][:size]
                 size = min(4 * size, SEED_CHUNK)  # the first seed usually finds the board
                 squares = _sample_ahead(xy, sampler, ahead, neighbours, free, sampled, levels[round_index:], near)
                 batch = dict(zip(ahead.tolist(), range(len(ahead))))
@@ -529,12 +529,12 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
             grower = grow(square) if square[0] else None
             if grower is None:
                 continue
-            if len(grower.cells()[1]) < MIN_CORNERS:  # a piece (module docstring)
+            idx = grower.cells()[1]
+            if len(idx) < MIN_CORNERS:  # a piece (module docstring)
                 pieces.append(square)
                 continue
             if last:  # a board behind another (module docstring)
                 behind.append(square)
-                idx = grower.cells()[1]
                 claimed[idx[idx < len(xy)]] = True
                 continue
             grown = True
