@@ -14,6 +14,16 @@ Orientation (deterministic, in this order):
    board).
 A partial board's indices start at 0 at its first found row and column, not at the true board's.
 
+Fitting a known board size (fitted_grid): a board whose extent is the size, either way round, is
+indexed cols x rows. One that spans more lines than the size is cut to the size's window holding
+most of its corners, where each line left out holds at most SIZE_STUB of the line inside it: where
+clutter along a board's outline continues its pattern (a glyph's strokes against its outer dark
+squares, a light shape under them), points beyond its last row or column pass every image test and
+lie on its lattice, and the board came out one line too wide (stress renders: fisheye 7010141,
+3 points beyond a 6 x 10 board, low-contrast 7060348 and 7060052, 2 and 1 beyond 7 x 9 and 3 x 14
+ones), so that given its true size it was dropped whole. A full line beyond it is no stub: such a
+board is not of that size. Two windows holding as many corners are ambiguous: no board.
+
 Pixel convention: (0, 0) is the centre of the top-left pixel; xy is (x, y).
 """
 
@@ -27,6 +37,7 @@ import numpy as np
 from .lattice import held_on_two_sides
 from .stats import vector_lengths
 
+SIZE_STUB = 0.6  # a line beyond a known board size holding at most this share of the line inside it is left out
 _ROTATIONS = (((1, 0), (0, 1)), ((0, -1), (1, 0)), ((-1, 0), (0, -1)), ((0, 1), (-1, 0)))  # the 4 proper
 # rotations of grid indices, (new_row, new_col) = M (row, col)
 
@@ -77,10 +88,14 @@ def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) ->
 
 def reoriented(board: Board, sign: float, board_size: tuple[int, int] | None = None) -> Board | None:
     """The board indexed from 0 and oriented again (module docstring), for a
-    grid that grew past its extent (indices below 0 or beyond cols / rows); sign: + where the quads
-    of even row + col of its grid are light. None where it no longer fits board_size."""
-    grid = oriented_grid(board.grid.astype(np.int64), board.xy, sign, board_size, False)
-    return None if grid is None else indexed_board(board.corner_index, grid, board.xy)
+    grid that grew past its extent (indices below 0 or beyond cols / rows), or fitted to board_size
+    (fitted_grid); sign: + where the quads of even row + col of its grid are light. None where it
+    does not fit board_size."""
+    fitted = fitted_grid(board.grid.astype(np.int64), board.xy, sign, board_size, False)
+    if fitted is None:
+        return None
+    keep, grid = fitted
+    return indexed_board(board.corner_index[keep], grid, board.xy[keep])
 
 
 def indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Board:
@@ -92,6 +107,59 @@ def indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Boar
     for a in (board.corner_index, board.grid, board.xy):
         a.setflags(write=False)
     return board
+
+
+def fitted_grid(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,
+                allow_partial: bool) -> tuple[np.ndarray, np.ndarray] | None:
+    """A grid (M, 2) with positions xy (M, 2) fitted to board_size (cols, rows; module docstring):
+    (keep (M,) bool, the kept corners' (row, col) (K, 2), oriented: oriented_grid), or None where
+    it makes no board of that size (with allow_partial: none within it). Without a size, all kept."""
+    oriented = oriented_grid(grid, xy, sign, board_size, allow_partial)
+    if oriented is not None:
+        return np.ones(len(grid), bool), oriented
+    keep = None if board_size is None else _size_window(grid, board_size, allow_partial)
+    if keep is None:
+        return None
+    oriented = oriented_grid(grid[keep], xy[keep], sign, board_size, allow_partial)
+    return None if oriented is None else (keep, oriented)
+
+
+def _size_window(grid: np.ndarray, board_size: tuple[int, int], allow_partial: bool) -> np.ndarray | None:
+    """(M,) the corners of a grid (M, 2) inside the one window of board_size's extent (either way
+    round; with allow_partial, at most the grid's own along each axis) that holds the most of them,
+    where every line of the grid outside it holds at most SIZE_STUB of the line next to it inside;
+    None where no window does, or two hold as many corners."""
+    rows, cols = (grid - grid.min(0)).T
+    filled = np.zeros((rows.max() + 1, cols.max() + 1), bool)
+    filled[rows, cols] = True
+    line_counts = filled.sum(1), filled.sum(0)
+    best: list[tuple[int, int, int, int]] = []
+    most = 0
+    for size in {tuple(board_size[::-1]), tuple(board_size)}:  # (rows, cols) either way round
+        if allow_partial:
+            size = tuple(min(n, extent) for n, extent in zip(size, filled.shape))
+        if any(n > extent for n, extent in zip(size, filled.shape)) or size == filled.shape:
+            continue
+        starts = [[s for s in range(extent - n + 1) if _stubs_outside(counts, s, n)]
+                  for counts, n, extent in zip(line_counts, size, filled.shape)]
+        for r0 in starts[0]:
+            for c0 in starts[1]:
+                count = int(filled[r0 : r0 + size[0], c0 : c0 + size[1]].sum())
+                if count > most:
+                    best, most = [], count
+                if count == most:
+                    best.append((r0, c0, *size))
+    if len(best) != 1:
+        return None
+    r0, c0, n_rows, n_cols = best[0]
+    return (rows >= r0) & (rows < r0 + n_rows) & (cols >= c0) & (cols < c0 + n_cols)
+
+
+def _stubs_outside(counts: np.ndarray, start: int, length: int) -> bool:
+    """Whether each line before `start` and from start + length on (counts: corners per line) holds at
+    most SIZE_STUB of the line next to it towards the window between."""
+    before, after = counts[: start + 1], counts[start + length - 1 :]
+    return bool((before[:-1] <= SIZE_STUB * before[1:]).all() and (after[1:] <= SIZE_STUB * after[:-1]).all())
 
 
 def oriented_grid(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,

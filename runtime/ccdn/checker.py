@@ -12,6 +12,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from .stats import median, nanmedian_rows
+
 MIN_CONTRAST = 2.0  # grey levels: differences below this are noise
 CROP_MIN_SAVING = 1_000_000  # pixels a Sampler's crop must spare of the frame to be worth its bounds checks
 NOISY_SIGMA = 5.0  # grey levels of image noise from which a frame is noisy: its board corners are refined on their
@@ -190,6 +192,23 @@ def quad_differences(sampler: Sampler, p: np.ndarray, u: np.ndarray, v: np.ndarr
     (pair_differences (K, 4), quad_spread (K,))."""
     median, low, high = quad_levels(sampler, p, u, v, reach, axes)
     return pair_differences(median), quad_spread(low, high)
+
+
+def light_parity(sampler: Sampler, xy: np.ndarray, grid: np.ndarray, u: np.ndarray, v: np.ndarray) -> float:
+    """+1 where the quads of even row + col of a board's grid are light, -1 where dark, 0 where its
+    corners do not tell: the sign of the median over its corners xy (M, 2) at grid (M, 2) (row, col)
+    of their quad pair differences (lattice steps u, v (M, 2) along +col and +row, NaN where
+    unknown) times their parity (grid_parity). A board's orientation turns on it (ccdn.board)."""
+    ok = np.isfinite(u[:, 0]) & np.isfinite(v[:, 0])
+    diffs, _ = quad_differences(sampler, xy[ok], u[ok], v[ok])
+    told = nanmedian_rows(diffs) * grid_parity(grid[ok])
+    told = told[np.isfinite(told)]
+    return float(np.sign(median(told))) if len(told) else 0.0
+
+
+def grid_parity(cells: np.ndarray) -> np.ndarray:
+    """(K,) +1 for (row, col) of even row + col, -1 for odd."""
+    return np.where(cells.sum(1) % 2 == 0, 1.0, -1.0)
 
 
 # the quads +u+v, +u-v, -u+v, -u-v (0..3): the steps (+-u +- v) / 2 from a corner to their centres over

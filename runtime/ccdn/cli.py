@@ -156,7 +156,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from .batch import collect_inputs
     from .calibration import CalibrationError, View, calibrate, report, write_outputs
     from .detector import Detector
-    from .grid import find_boards
+    from .sizing import fitted_board
 
     try:
         detector = Detector(args.model, args.threads, coarse_model=args.coarse_model, exhaustive=args.exhaustive)
@@ -173,12 +173,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:  # ImageError is a ValueError
             reasons.append(str(exc))
             continue
-        boards = find_boards(gray, result.xy, result.score, args.board, allow_partial=args.partial,
-                             markers=True, close_ups=True)  # a ChArUco-style board's or a close-up's: that search too
+        # the detection's boards fitted to the size (ccdn.sizing), the largest first
+        board = next(filter(None, (fitted_board(gray, b, args.board, args.partial) for b in result.boards)), None)
         sizes.add(result.image_size)
         paths[item.name] = item.path
-        if boards:
-            views.append(View.from_board(item.name, boards[0]))
+        if board is not None:
+            views.append(View.from_board(item.name, board))
         else:
             missing.append(item.name)
     for reason in reasons:

@@ -45,7 +45,7 @@ import numpy as np
 
 from .checker import NOISY_SIGMA, image_noise
 from .edges import lattice_steps, on_straight_lines, refine_on_edges
-from .board import Board, with_corners
+from .board import Board, fitted_grid, with_corners
 from .grid import SHADE_SPREAD, find_boards, nearest_neighbours
 from .holes import filled_holes, hole_boxes, predicted_holes, settled
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
@@ -60,6 +60,7 @@ from .result import Detection
 from .session import ScoreSession
 from .shade import across_shadows_edge, light_levels, light_spread, refined_across_shadows_edge
 from .shaded import grown_into_shade
+from .sizing import fitted_board
 from .stats import median, nanmedian_rows, quantile, vector_lengths
 
 ImageInput = str | os.PathLike | np.ndarray
@@ -176,10 +177,12 @@ class Detector:
 
         Detection.boards holds the boards the corners form (ccdn.grid.find_boards) whenever they
         were found: always with the default grid filter, and with boards=True under the others.
-        board_size=(cols, rows) keeps only boards, and their corners, of that size.
+        board_size=(cols, rows) keeps only boards, and their corners, of that size (found as without
+        it, then fitted to it: ccdn.sizing).
         Coordinates: (x, y), (0, 0) is the centre of the top-left pixel.
         """
         clock = _Clock()
+        boards = boards or board_size is not None  # non-grid filters find boards for the size too
         gray = self.load(image)
         clock.lap("load")
         xy = values = found = shrunk = None
@@ -196,14 +199,17 @@ class Detector:
         elif xy is None:
             model = self.model
             boxes = None if shrunk is None else look_boxes(*shrunk, gray.shape, self._session.halo)
-            xy, values, found, peaks = self._full_frame(gray, boxes, boards, board_size, clock)
+            xy, values, found, peaks = self._full_frame(gray, boxes, boards, clock)
             if self._saddle_boards:
-                xy, values, found = self._loose_looks(gray, xy, values, found, peaks, boards, board_size, clock)
+                xy, values, found = self._loose_looks(gray, xy, values, found, peaks, boards, clock)
                 xy, values, found = _without_tiny_boards(xy, values, found)
         lights = None
         if self._saddle_boards and not self.fast_check:
-            xy, values, found, lights = self._grown_into_shade(gray, xy, values, found, board_size, clock)
+            xy, values, found, lights = self._grown_into_shade(gray, xy, values, found, clock)
         xy, values, found = self._on_edges(gray, xy, values, found, clock, lights)
+        if board_size is not None:  # the boards every pass and look made, fitted (ccdn.sizing)
+            fitted = (fitted_board(gray, board, board_size) for board in found)
+            xy, values, found = _keep_board_corners(xy, values, tuple(board for board in fitted if board is not None))
         return Detection(xy, np.clip(values, 0, 1), (gray.shape[1], gray.shape[0]), f"{model.name} {model.version}",
                          found, clock.laps)
 
@@ -218,15 +224,16 @@ class Detector:
         on the peaks, before any refinement, then on the corners found, their gaps and, on the halved
         frame, their boards' thinnest squares, before their edge-line refinement, which a pass left to
         a finer one would waste: with any_squares, only on the peaks) or no board is found. The holes
-        a kept pass leaves in its boards are filled from the full-resolution network (_filled_holes)."""
+        a kept pass leaves in its boards are filled from the full-resolution network (_filled_holes).
+        With a board_size, a pass none of whose boards fits it (ccdn.board.fitted_grid) is not kept."""
         score, xy, values, gaps = self._peaks(self._coarse_session, small, clock)
         # the peaks' upper quartile: clutter's peaks lie closer together than a board's corners and,
         # more numerous with the fast model, pull the median below the board's squares
         if len(xy) < 9 or quantile(gaps, 0.75) < COARSE_MIN_SQUARE:
             return None, None, None, score
-        xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, board_size, clock,
-                                          markers=True)
-        if len(xy) < 9 or (not any_squares and _too_small(xy, found, scale)):
+        xy, values, found = self._corners(gray, small, scale, score, xy, values, gaps, boards, clock, markers=True)
+        fits = board_size is None or any(fitted_grid(b.grid, b.xy, 0.0, board_size, False) is not None for b in found)
+        if len(xy) < 9 or not fits or (not any_squares and _too_small(xy, found, scale)):
             return None, None, None, score
         if not self.fast_check and self._saddle_boards:
             xy, values, found = self._filled_holes(gray, xy, values, found, clock)
@@ -247,7 +254,7 @@ class Detector:
         return score, xy, values, gaps
 
     def _corners(self, gray: np.ndarray, frame: np.ndarray, scale: int, score: np.ndarray, xy: np.ndarray,
-                 values: np.ndarray, gaps: np.ndarray, boards: bool, board_size, clock: _Clock,
+                 values: np.ndarray, gaps: np.ndarray, boards: bool, clock: _Clock,
                  full_frame: bool = False, markers: bool = False):
         """Peaks xy of `score` (the network on `frame`: gray shrunk by `scale`; `gaps`: theirs, in
         frame pixels) refined on gray, then the boards they form (full_frame: the full frame's pass,
@@ -270,15 +277,15 @@ class Detector:
         if markers and scale == 1 and self.refinement == "saddle" and not ok.all():
             more = functools.partial(_retried_fits, gray, start[~ok], peak_values[~ok], radius, refined)
         found: tuple[Board, ...] = ()
-        if self.filter == "grid" or boards or board_size is not None:
+        if self.filter == "grid" or boards:
             complete = self.filter == "grid"
-            found = settled(find_boards(gray, refined, values, board_size, complete=complete,
+            found = settled(find_boards(gray, refined, values, complete=complete,
                                         uneven_seeds=FULL_FRAME_UNEVEN_SEEDS if scale == 1 else 0,
                                         shade_unfound=full_frame, markers=markers, close_ups=full_frame, more=more),
                             gray.shape)
             if complete:
                 refined, values = _with_completed(refined, values, found, score, scale)
-            if complete or board_size is not None:
+            if complete:
                 refined, values, found = _keep_board_corners(refined, values, found)
             clock.lap("boards")
         return refined, values, found
@@ -305,14 +312,14 @@ class Detector:
         return xy, values, found
 
     def _grown_into_shade(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
-                          board_size, clock: _Clock):
+                          clock: _Clock):
         """xy, values and boards with each board's part in deep shade grown from it (ccdn.shaded): the
         network on the frame levelled around a board across whose corners a shadow's edge runs. Also
         each board's lattice steps and light levels (_light) where it did not grow, for the edge stage."""
         boards, lights, before = [], [], len(xy)
         for board in found:
             light = _light(gray, board)
-            board, points, scores = grown_into_shade(gray, board, *light, self._session, xy, board_size)
+            board, points, scores = grown_into_shade(gray, board, *light, self._session, xy)
             xy, values = np.concatenate([xy, points]), np.concatenate([values, scores])
             boards.append(board)
             lights.append(None if len(points) else light)
@@ -322,44 +329,43 @@ class Detector:
         return xy, values, found, lights
 
     def _full_frame(self, gray: np.ndarray, boxes: list[tuple[int, int, int, int]] | None, boards: bool,
-                    board_size, clock: _Clock):
+                    clock: _Clock):
         """The full-frame pass (the network only inside `boxes` when given: ccdn.regions), with the
         magnified look at its thin boards: (xy, values, boards, its score peaks)."""
         score, peaks, values, gaps = self._peaks(self._session, gray, clock, boxes)
-        xy, values, found = self._corners(gray, gray, 1, score, peaks, values, gaps, boards, board_size, clock,
+        xy, values, found = self._corners(gray, gray, 1, score, peaks, values, gaps, boards, clock,
                                           full_frame=True, markers=True)
         if self._saddle_boards:
             xy, values, found = self._magnified(gray, thin_region(found, gray.shape), xy, values, found, boards,
-                                                board_size, clock)
+                                                clock)
         return xy, values, found, peaks
 
     def _loose_looks(self, gray: np.ndarray, xy: np.ndarray, values: np.ndarray, found: tuple[Board, ...],
-                     peaks: np.ndarray, boards: bool, board_size, clock: _Clock):
+                     peaks: np.ndarray, boards: bool, clock: _Clock):
         """xy, values and boards with the looks at the clusters of score peaks that no board covers
         (sliver-shaped ones; exhaustive: all), each stretched across its long axis (ccdn.magnify.stretched),
         one after the other."""
         for cluster in loose_clusters(peaks, found, gray.shape, any_shape=self.exhaustive):
             view = stretched(gray, cluster)
             if view is not None:
-                xy, values, found = self._look(*view, xy, values, found, boards, board_size, clock)
+                xy, values, found = self._look(*view, xy, values, found, boards, clock)
         return xy, values, found
 
     def _magnified(self, gray: np.ndarray, region: tuple[int, int, int, int] | None, xy: np.ndarray,
-                   values: np.ndarray, found: tuple[Board, ...], boards: bool, board_size, clock: _Clock):
+                   values: np.ndarray, found: tuple[Board, ...], boards: bool, clock: _Clock):
         """The corners and boards with the look at `region` magnified (ccdn.magnify; None: as they are)."""
         if region is None:
             return xy, values, found
-        return self._look(magnified(gray, region), magnified_to_frame(region), xy, values, found, boards, board_size,
-                          clock)
+        return self._look(magnified(gray, region), magnified_to_frame(region), xy, values, found, boards, clock)
 
     def _look(self, view: np.ndarray, to_frame: np.ndarray, xy: np.ndarray, values: np.ndarray,
-              found: tuple[Board, ...], boards: bool, board_size, clock: _Clock):
+              found: tuple[Board, ...], boards: bool, clock: _Clock):
         """The corners and boards, with the boards found on `view`, a resampled part of the frame (its
         affine (2, 3) `to_frame` maps it back), in place of those they cover where they have more
         corners (ccdn.magnify.merge). The look runs the shrunk passes' model: corners lie farther
         apart there."""
         more_xy, more_values, more_found = self._corners(view, view, 1, *self._peaks(self._coarse_session, view, clock),
-                                                         boards, board_size, clock)
+                                                         boards, clock)
         more_found = tuple(dataclasses.replace(b, xy=_read_only(from_view(b.xy, to_frame))) for b in more_found)
         return _keep_board_corners(*merge(xy, values, found, from_view(more_xy, to_frame), more_values, more_found))
 

@@ -140,7 +140,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from .board import Board, indexed_board, largest_first, oriented_grid, reoriented
+from .board import Board, fitted_grid, indexed_board, largest_first, reoriented
 from .checker import Sampler, quad_levels, x_like
 from .edges import lattice_steps, median_step
 from .growth import Grower
@@ -309,9 +309,10 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     gray: (H, W) uint8 image the corners come from. xy: (N, 2) corner positions (x, y), (0, 0) the
     centre of the top-left pixel; score: (N,) confidences (seeds are tried best first).
     board_size: (cols, rows) inner corners; if given, only boards of that size (either way round,
-    re-indexed to cols x rows) are returned, or also smaller ones that fit it when allow_partial
-    (their indices then start at 0 where the found part starts). The indices' orientation: ccdn.board's
-    module docstring. complete: also take corners the image shows where the grid predicts
+    re-indexed to cols x rows; one line too wide where clutter along the outline continues the
+    pattern: cut to it, ccdn.board.fitted_grid) are returned, or also smaller ones that fit it when
+    allow_partial (their indices then start at 0 where the found part starts). The indices'
+    orientation: ccdn.board's module docstring. complete: also take corners the image shows where the grid predicts
     one that xy lacks (ccdn.completion); their corner_index is >= len(xy), their position in Board.xy.
     uneven_seeds: how many corners of a seed square may have non-uniform quads (0 or 1) before the last round
     (module docstring). shade_unfound (with complete): where no board is found, also search the
@@ -557,9 +558,10 @@ def _search(gray: np.ndarray, sampler: Sampler, xy: np.ndarray, score: np.ndarra
     found = []
     for grower in growers:
         grid, idx = grower.cells()
-        oriented = oriented_grid(grid, grower.points(idx), grower.sign, board_size, allow_partial)
-        if oriented is not None:
-            found.append(indexed_board(idx, oriented, points[idx]))
+        fitted = fitted_grid(grid, grower.points(idx), grower.sign, board_size, allow_partial)
+        if fitted is not None:
+            keep, oriented = fitted
+            found.append(indexed_board(idx[keep], oriented, points[idx[keep]]))
     if not any(len(board) >= MIN_CORNERS for board in found):  # pieces beside a board or close-ups (module docstring)
         found = [board for board in found if _close_up(board, gray.shape)]
     return tuple(largest_first(found))

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .checker import Sampler, quad_differences
+from .checker import Sampler, grid_parity, light_parity, quad_differences
 from .edges import median_step
 from .board import Board, reoriented, with_corners
 from .grid import SHADE_SPREAD
@@ -41,19 +41,18 @@ from .lattice import row_col_neighbours
 from .refine import window_for_spacing
 from .session import ScoreSession
 from .shade import across_shadows_edge, levelled, light_levels
-from .stats import median, nanmedian_rows
+from .stats import median
 
 SHADE_MARGIN = 4  # squares: the levelled frame and the network's scores on it reach this far around the board
 
 
 def grown_into_shade(gray: np.ndarray, board: Board, steps: np.ndarray, levels: np.ndarray, session: ScoreSession,
-                     taken: np.ndarray, board_size: tuple[int, int] | None = None
-                     ) -> tuple[Board, np.ndarray, np.ndarray]:
+                     taken: np.ndarray) -> tuple[Board, np.ndarray, np.ndarray]:
     """The board (its lattice steps (M, 4, 2: ccdn.edges.lattice_steps) and its corners' light
     levels (4, M: ccdn.shade.light_levels)) grown into the deep shade next to it (module docstring)
     where a shadow's edge runs across its corners: the board, its new corners indexed from len(taken)
-    on and its indices oriented again (ccdn.board.reoriented; unchanged where it no longer fits
-    board_size), their positions (F, 2) and scores (F,: the network's, on the levelled frame).
+    on and its indices oriented again (ccdn.board.reoriented), their positions (F, 2) and scores
+    (F,: the network's, on the levelled frame).
     taken: (N, 2) the corners found so far, which no new one may lie within half a step of."""
     none = board, np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
     lightest = np.fmax.reduce(levels, 0)[np.isfinite(levels).all(0)]
@@ -87,7 +86,7 @@ def grown_into_shade(gray: np.ndarray, board: Board, steps: np.ndarray, levels: 
         return none
     held = _held(grid, np.arange(len(grid)) >= len(board))[len(board):]
     cells, points = np.concatenate(found_cells)[held], np.concatenate(found_xy)[held].astype(np.float32)
-    grown = reoriented(with_corners(board, cells, points, len(taken)), look.sign, board_size) if held.any() else None
+    grown = reoriented(with_corners(board, cells, points, len(taken)), look.sign) if held.any() else None
     if grown is None:
         return none
     return grown, points, np.concatenate(found_scores)[held].astype(np.float32)
@@ -109,8 +108,8 @@ def _shaded_cells(gray: np.ndarray, grid: np.ndarray, xy: np.ndarray, around: np
 
 class _LevelledLook:
     """The frame levelled around a board (between (x, y) `low` and `high`; squares `square` px
-    across), the board's colours there (sign: _colours) and the network's scores on it, asked for a
-    step around the positions looked at only (as ccdn.holes does: on the whole levelled part of a
+    across), the board's colours there (sign: ccdn.checker.light_parity) and the network's scores
+    on it, asked for a step around the positions looked at only (as ccdn.holes does: on the whole levelled part of a
     shadow render's frame the network cost 11-66 ms)."""
 
     def __init__(self, gray: np.ndarray, board: Board, steps: np.ndarray, low: np.ndarray, high: np.ndarray,
@@ -118,7 +117,7 @@ class _LevelledLook:
         self.origin, self.session = low, session
         self.flat = levelled(gray[low[1] : high[1] + 1, low[0] : high[0] + 1], square)
         self.sampler = Sampler(self.flat)
-        self.sign = _colours(self.sampler, board, steps, low)
+        self.sign = light_parity(self.sampler, board.xy - low, board.grid, steps[:, 0], steps[:, 2])
         self.radius = window_for_spacing(square)
         self.shape = gray.shape
 
@@ -172,26 +171,12 @@ def _canvas(grid: np.ndarray, low: np.ndarray | None = None, shape: tuple[int, .
     return filled, low
 
 
-def _colours(sampler: Sampler, board: Board, steps: np.ndarray, origin: np.ndarray) -> float:
-    """+1 where the quads of even row + col of the board's grid are light on the sampled frame, -1
-    where dark (0 where its corners do not tell): the sign of its corners' quad pair differences
-    with the grid's parity."""
-    ok = np.isfinite(steps[:, [0, 2], 0]).all(1)  # a step along its row and its column
-    diffs, _ = quad_differences(sampler, board.xy[ok] - origin, steps[ok, 0], steps[ok, 2])
-    told = nanmedian_rows(diffs) * _parity(board.grid[ok])
-    told = told[np.isfinite(told)]
-    return float(np.sign(median(told))) if len(told) else 0.0
-
-
 def _alternating(sampler: Sampler, xy: np.ndarray, steps: np.ndarray, cells: np.ndarray, sign: float) -> np.ndarray:
     """(K,) whether the four quads around points xy (K, 2; lattice steps (K, 4, 2)) at `cells` alternate
-    in the board's colours (sign: _colours), the weakest pair at least PAIR_RATIO x the strongest."""
+    in the board's colours (sign: ccdn.checker.light_parity), the weakest pair at least PAIR_RATIO x the strongest."""
     diffs, _ = quad_differences(sampler, xy, steps[:, 0], steps[:, 2])
-    signed = diffs * (_parity(cells) * sign)[:, None]
+    signed = diffs * (grid_parity(cells) * sign)[:, None]
     with np.errstate(invalid="ignore"):
         return (signed.min(1) > 0) & (signed.min(1) >= PAIR_RATIO * signed.max(1))
 
 
-def _parity(cells: np.ndarray) -> np.ndarray:
-    """(K,) +1 for (row, col) of even row + col, -1 for odd."""
-    return np.where(cells.sum(1) % 2 == 0, 1.0, -1.0)
