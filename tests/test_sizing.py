@@ -53,3 +53,9 @@ def test_a_board_given_its_size_is_the_board_found_without_it(detector, subset, 
     labels = scene.corners.reshape(-1, 2)
     assert np.linalg.norm(board.xy[:, None] - labels[None], axis=2).min(1).max() < 0.5
     assert wrongly_indexed([(board.grid, board.xy)], scene, match_radius(scene)) == (1, 0)
+
+
+@pytest.mark.parametrize("size", [(0, 0), (1, 5), (9.5, 6), "9x6", (9, 6, 1)])
+def test_a_board_size_that_is_no_board_size_is_a_clear_error(detector, examples, size):
+    with pytest.raises(ValueError, match="board_size must be"):
+        detector.detect(examples["board"]["path"], board_size=size)

@@ -109,6 +109,21 @@ def indexed_board(idx: np.ndarray, grid: np.ndarray, points: np.ndarray) -> Boar
     return board
 
 
+def checked_size(board_size) -> tuple[int, int] | None:
+    """board_size as (cols, rows) ints (None stays None): a ValueError, not a failure deep inside,
+    for anything but two whole numbers of inner corners of at least 2 each."""
+    if board_size is None:
+        return None
+    try:
+        cols, rows = (int(n) for n in board_size)
+        whole = all(n == int(n) for n in board_size)
+    except (TypeError, ValueError):
+        raise ValueError(f"board_size must be (cols, rows) inner corners, e.g. (9, 6), got {board_size!r}") from None
+    if not whole or cols < 2 or rows < 2:
+        raise ValueError(f"board_size must be (cols, rows) whole numbers of inner corners >= 2, got {board_size!r}")
+    return cols, rows
+
+
 def fitted_grid(grid: np.ndarray, xy: np.ndarray, sign: float, board_size: tuple[int, int] | None,
                 allow_partial: bool) -> tuple[np.ndarray, np.ndarray] | None:
     """A grid (M, 2) with positions xy (M, 2) fitted to board_size (cols, rows; module docstring):

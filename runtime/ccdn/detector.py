@@ -45,7 +45,7 @@ import numpy as np
 
 from .checker import NOISY_SIGMA, image_noise
 from .edges import lattice_steps, on_straight_lines, refine_on_edges
-from .board import Board, fitted_grid, with_corners
+from .board import Board, checked_size, fitted_grid, with_corners
 from .grid import SHADE_SPREAD, find_boards, nearest_neighbours
 from .holes import filled_holes, hole_boxes, predicted_holes, settled
 from .image import DEFAULT_MAX_PIXELS, read_gray, to_gray
@@ -182,6 +182,7 @@ class Detector:
         Coordinates: (x, y), (0, 0) is the centre of the top-left pixel.
         """
         clock = _Clock()
+        board_size = checked_size(board_size)
         boards = boards or board_size is not None  # non-grid filters find boards for the size too
         gray = self.load(image)
         clock.lap("load")

@@ -140,7 +140,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from .board import Board, fitted_grid, indexed_board, largest_first, reoriented
+from .board import Board, checked_size, fitted_grid, indexed_board, largest_first, reoriented
 from .checker import Sampler, quad_levels, x_like
 from .edges import lattice_steps, median_step
 from .growth import Grower
@@ -328,6 +328,7 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     """
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"gray must be a 2-D uint8 image, got shape {gray.shape} dtype {gray.dtype}")
+    board_size = checked_size(board_size)
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     score = np.asarray(score, np.float64).reshape(-1)
     if len(score) != len(xy):
