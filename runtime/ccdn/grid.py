@@ -311,9 +311,10 @@ def find_boards(gray: np.ndarray, xy: np.ndarray, score: np.ndarray, board_size:
     board_size: (cols, rows) inner corners; if given, only boards of that size (either way round,
     re-indexed to cols x rows; one line too wide where clutter along the outline continues the
     pattern: cut to it, ccdn.board.fitted_grid) are returned, or also smaller ones that fit it when
-    allow_partial (their indices then start at 0 where the found part starts). The indices'
-    orientation: ccdn.board's module docstring. complete: also take corners the image shows where the grid predicts
-    one that xy lacks (ccdn.completion); their corner_index is >= len(xy), their position in Board.xy.
+    allow_partial (their indices then start at 0 where the found part starts); anything but two whole
+    numbers of at least 2 is a ValueError. The indices' orientation: ccdn.board's module docstring.
+    complete: also take corners the image shows where the grid predicts one that xy lacks
+    (ccdn.completion); their corner_index is >= len(xy), their position in Board.xy.
     uneven_seeds: how many corners of a seed square may have non-uniform quads (0 or 1) before the last round
     (module docstring). shade_unfound (with complete): where no board is found, also search the
     levelled frame when the corner-like points lie in uneven light (module docstring, Shade).
