@@ -178,7 +178,8 @@ class Detector:
         Detection.boards holds the boards the corners form (ccdn.grid.find_boards) whenever they
         were found: always with the default grid filter, and with boards=True under the others.
         board_size=(cols, rows) keeps only boards, and their corners, of that size (found as without
-        it, then fitted to it: ccdn.sizing).
+        it, then fitted to it: ccdn.sizing); anything but two whole numbers of at least 2 raises
+        ValueError.
         Coordinates: (x, y), (0, 0) is the centre of the top-left pixel.
         """
         clock = _Clock()
