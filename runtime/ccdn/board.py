@@ -86,12 +86,13 @@ def with_corners(board: Board, cells: np.ndarray, xy: np.ndarray, first: int) ->
                           np.concatenate([board.grid, cells]), np.concatenate([board.xy, xy]))
 
 
-def reoriented(board: Board, sign: float, board_size: tuple[int, int] | None = None) -> Board | None:
+def reoriented(board: Board, sign: float, board_size: tuple[int, int] | None = None,
+               allow_partial: bool = False) -> Board | None:
     """The board indexed from 0 and oriented again (module docstring), for a
     grid that grew past its extent (indices below 0 or beyond cols / rows), or fitted to board_size
-    (fitted_grid); sign: + where the quads of even row + col of its grid are light. None where it
-    does not fit board_size."""
-    fitted = fitted_grid(board.grid.astype(np.int64), board.xy, sign, board_size, False)
+    (fitted_grid; with allow_partial, within it); sign: + where the quads of even row + col of its
+    grid are light. None where it does not fit board_size."""
+    fitted = fitted_grid(board.grid.astype(np.int64), board.xy, sign, board_size, allow_partial)
     if fitted is None:
         return None
     keep, grid = fitted

@@ -109,8 +109,8 @@ def _shaded_cells(gray: np.ndarray, grid: np.ndarray, xy: np.ndarray, around: np
 class _LevelledLook:
     """The frame levelled around a board (between (x, y) `low` and `high`; squares `square` px
     across), the board's colours there (sign: ccdn.checker.light_parity) and the network's scores
-    on it, asked for a step around the positions looked at only (as ccdn.holes does: on the whole levelled part of a
-    shadow render's frame the network cost 11-66 ms)."""
+    on it, asked for a step around the positions looked at only (as ccdn.holes does: on the whole
+    levelled part of a shadow render's frame the network cost 11-66 ms)."""
 
     def __init__(self, gray: np.ndarray, board: Board, steps: np.ndarray, low: np.ndarray, high: np.ndarray,
                  square: float, session: ScoreSession) -> None:
@@ -173,7 +173,8 @@ def _canvas(grid: np.ndarray, low: np.ndarray | None = None, shape: tuple[int, .
 
 def _alternating(sampler: Sampler, xy: np.ndarray, steps: np.ndarray, cells: np.ndarray, sign: float) -> np.ndarray:
     """(K,) whether the four quads around points xy (K, 2; lattice steps (K, 4, 2)) at `cells` alternate
-    in the board's colours (sign: ccdn.checker.light_parity), the weakest pair at least PAIR_RATIO x the strongest."""
+    in the board's colours (sign: ccdn.checker.light_parity), the weakest pair at least PAIR_RATIO x
+    the strongest."""
     diffs, _ = quad_differences(sampler, xy, steps[:, 0], steps[:, 2])
     signed = diffs * (grid_parity(cells) * sign)[:, None]
     with np.errstate(invalid="ignore"):

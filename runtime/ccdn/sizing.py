@@ -2,7 +2,7 @@
 calibrate` keep of a detection.
 
 The boards are found as without a size, by every pass and look (ccdn.detector), and only then
-fitted to it (ccdn.board.fitted_grid: as they are, either way round, or cut to it where clutter
+fitted to it (ccdn.board.reoriented, fitted_grid: as they are, either way round, or cut to it where clutter
 along the outline left a stub line beyond it), and indexed cols x rows. Fitted inside the search,
 a steep board's part that the magnified look would have grown whole was dropped for its size, and
 the board with it (stress extreme-pose renders 7100120 and 7100236: 26 of 44 and 47 of 54 corners
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .board import Board, fitted_grid, indexed_board
+from .board import Board, reoriented
 from .checker import Sampler, light_parity
 from .edges import lattice_steps, median_step
 
@@ -31,9 +31,5 @@ def fitted_board(gray: np.ndarray, board: Board, board_size: tuple[int, int], al
     steps = lattice_steps(board)
     xy = board.xy.astype(np.float64)
     sampler = Sampler(gray, (xy, median_step(steps)))
-    sign = light_parity(sampler, xy, board.grid, steps[:, 0], steps[:, 2])
-    fitted = fitted_grid(board.grid.astype(np.int64), board.xy, sign, board_size, allow_partial)
-    if fitted is None:
-        return None
-    keep, grid = fitted
-    return indexed_board(board.corner_index[keep], grid, board.xy[keep])
+    return reoriented(board, light_parity(sampler, xy, board.grid, steps[:, 0], steps[:, 2]), board_size,
+                      allow_partial)
